@@ -1,0 +1,36 @@
+# brace_control: `make demo` runs the lumbar brace on the simulated CAN bus,
+# `make test` runs the whole test suite. Both create .venv on first use.
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+DEVICE ?= lumbar_brace
+
+# DDS discovery stays on this machine unless the caller says otherwise.
+export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
+export MPLBACKEND ?= Agg
+
+.PHONY: venv demo test bench colcon clean
+
+venv: $(VENV)/.installed
+
+$(VENV)/.installed: requirements.txt setup.py setup.cfg package.xml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -r requirements.txt
+	$(PY) -m pip install --quiet --no-deps --no-build-isolation -e .
+	touch $@
+
+demo: venv
+	$(PY) -m brace_control.demo --device $(DEVICE) --out demo_output
+
+test: venv
+	$(PY) -m pytest -q
+
+bench: venv
+	$(PY) -m bench
+
+colcon: venv
+	$(VENV)/bin/colcon build --base-paths . --build-base build --install-base install
+
+clean:
+	rm -rf build install log demo_output .pytest_cache

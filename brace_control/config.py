@@ -1,0 +1,152 @@
+"""The device YAML: one ROS 2 parameter file read by the nodes and by the pure-Python API.
+
+A device file looks like::
+
+    /**:
+      ros__parameters:
+        device: lumbar_brace
+        mechanism: {type: rpr3, ...}
+        can: {...}
+
+Nested mappings are ROS parameter namespaces (``mechanism.type``); lists of points are
+flattened ``[x0, y0, x1, y1, ...]`` because ROS parameters cannot hold nested lists.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+__all__ = [
+    'DeviceConfig', 'ConfigError', 'load_device_config', 'flatten_parameters',
+    'points', 'config_dir', 'resolve_device_file',
+]
+
+
+class ConfigError(ValueError):
+    """A device file is missing, malformed, or holds a value out of its range."""
+
+
+class DeviceConfig(dict):
+    """Parameters of one device (the ``ros__parameters`` mapping), plus where it came from.
+
+    Behaves as the nested dict of the YAML; :meth:`get_path` reads dotted names the way a
+    ROS parameter is named (``cfg.get_path('can.sync_rate_hz')``).
+    """
+
+    def __init__(self, params: Mapping[str, Any], path: Path | None = None) -> None:
+        super().__init__(params)
+        self.path = path
+
+    def get_path(self, dotted: str, default: Any = ...) -> Any:
+        node: Any = self
+        for key in dotted.split('.'):
+            if not isinstance(node, Mapping) or key not in node:
+                if default is ...:
+                    where = f' in {self.path}' if self.path else ''
+                    raise ConfigError(f'parameter {dotted!r} is missing{where}')
+                return default
+            node = node[key]
+        return node
+
+    def section(self, name: str) -> dict[str, Any]:
+        """The sub-mapping ``name`` (empty dict if absent)."""
+        value = self.get(name, {})
+        if not isinstance(value, Mapping):
+            raise ConfigError(f'parameter {name!r} must be a mapping, got {type(value).__name__}')
+        return dict(value)
+
+    def relative_file(self, name: str) -> Path:
+        """A file named in the YAML, relative to the YAML's own directory."""
+        p = Path(name)
+        if not p.is_absolute() and self.path is not None:
+            p = self.path.parent / p
+        return p
+
+
+def config_dir() -> Path:
+    """The package's config directory: the source tree's, else the installed share/ one."""
+    src = Path(__file__).resolve().parent.parent / 'config'
+    if src.is_dir():
+        return src
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        return Path(get_package_share_directory('brace_control')) / 'config'
+    except Exception:  # noqa: BLE001 - no ament index: only the source layout is left
+        return src
+
+
+def resolve_device_file(name_or_path: str | Path) -> Path:
+    """A device YAML by path, or by bare device name (``lumbar_brace``) from :func:`config_dir`."""
+    p = Path(name_or_path)
+    if p.is_file():
+        return p
+    candidate = config_dir() / (p.name if p.suffix else f'{p.name}.yaml')
+    if candidate.is_file():
+        return candidate
+    raise ConfigError(f'device file {str(name_or_path)!r} not found (looked at {p} and {candidate})')
+
+
+def load_device_config(path: str | Path) -> DeviceConfig:
+    """Read a device YAML (ROS 2 parameter file) into a :class:`DeviceConfig`.
+
+    Accepts the ``/**: ros__parameters:`` layout, a single node-name key with
+    ``ros__parameters``, or a bare mapping of parameters.
+
+    :raises ConfigError: missing file, YAML syntax error, or no parameter mapping.
+    """
+    p = resolve_device_file(path)
+    try:
+        doc = yaml.safe_load(p.read_text())
+    except yaml.YAMLError as exc:
+        raise ConfigError(f'{p}: not valid YAML: {exc}') from exc
+    if not isinstance(doc, Mapping):
+        raise ConfigError(f'{p}: expected a mapping at the top level, got {type(doc).__name__}')
+    params: Any = None
+    if '/**' in doc:
+        params = (doc['/**'] or {}).get('ros__parameters')
+    else:
+        for value in doc.values():
+            if isinstance(value, Mapping) and 'ros__parameters' in value:
+                params = value['ros__parameters']
+                break
+        else:
+            params = doc
+    if not isinstance(params, Mapping):
+        raise ConfigError(f'{p}: no "ros__parameters" mapping found')
+    return DeviceConfig(params, p.resolve())
+
+
+def flatten_parameters(params: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:
+    """Nested mapping -> ``{'mechanism.type': 'rpr3', ...}`` as ROS names its parameters."""
+    out: dict[str, Any] = {}
+    for key, value in params.items():
+        name = f'{prefix}{key}'
+        if isinstance(value, Mapping):
+            out.update(flatten_parameters(value, f'{name}.'))
+        else:
+            out[name] = value
+    return out
+
+
+def points(flat: Any, name: str, *, dim: int = 2) -> np.ndarray:
+    """A flattened point list ``[x0, y0, x1, y1, ...]`` (or already nested) -> (n, dim) array.
+
+    :raises ConfigError: non-numeric, non-finite, or a length not a multiple of ``dim``.
+    """
+    try:
+        arr = np.asarray(flat, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f'{name}: expected numbers, got {flat!r}') from exc
+    if arr.ndim == 2 and arr.shape[1] == dim:
+        pass
+    elif arr.ndim == 1 and arr.size % dim == 0 and arr.size > 0:
+        arr = arr.reshape(-1, dim)
+    else:
+        raise ConfigError(f'{name}: expected a flat list of {dim}-D points, got shape {arr.shape}')
+    if not np.all(np.isfinite(arr)):
+        raise ConfigError(f'{name}: contains a non-finite value')
+    return arr

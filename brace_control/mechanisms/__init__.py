@@ -1,0 +1,13 @@
+"""Mechanism models: one module per mechanism, one shared protocol (:mod:`.base`).
+
+>>> from brace_control.mechanisms import load_mechanism
+>>> mech = load_mechanism('config/lumbar_brace.yaml')
+"""
+from .base import Mechanism, SingularPose, UnreachablePose
+from .loader import MECHANISM_TYPES, load_mechanism, mechanism_from_config
+from .rpr3 import Rpr3
+
+__all__ = [
+    'Mechanism', 'UnreachablePose', 'SingularPose', 'Rpr3',
+    'load_mechanism', 'mechanism_from_config', 'MECHANISM_TYPES',
+]

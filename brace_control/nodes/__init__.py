@@ -1,0 +1,1 @@
+"""Thin rclpy wrappers: parameters, topics, services, timers. No math here."""

@@ -1,0 +1,179 @@
+"""Device parameters for the nodes: declared with descriptors, range-checked at start-up.
+
+Every node reads the same device YAML (``--ros-args --params-file config/<device>.yaml``).
+:data:`SCHEMA` lists each parameter a node may use, with its default, its range and
+whether it is read-only (the safety limits are). A node calls
+:func:`declare_device_parameters` with the sections it needs and gets a
+:class:`~brace_control.config.DeviceConfig` back, the same object the pure API builds
+from the file, so ``mechanism_from_config(cfg)`` gives the node's model.
+
+The ``mechanism.*`` geometry differs per mechanism type; those keys are taken from the
+parameter file as given and declared read-only.
+"""
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import Any
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.exceptions import (InvalidParameterTypeException,
+                              InvalidParameterValueException)
+from rclpy.node import Node
+
+from ..config import ConfigError, DeviceConfig
+
+__all__ = ['Param', 'SCHEMA', 'declare_device_parameters', 'ConfigError']
+
+
+@dataclass(frozen=True)
+class Param:
+    """One parameter: default value (its type is the parameter's type), range, read-only."""
+
+    default: Any
+    description: str
+    range: tuple[float, float] | None = None
+    read_only: bool = False
+    length: int | None = None          # exact length for an array, None = any
+    choices: tuple[str, ...] | None = None
+
+
+_F = float
+SCHEMA: dict[str, Param] = {
+    'device': Param('lumbar_brace', 'device name', read_only=True),
+    'base_frame': Param('brace_base', 'frame of the fixed base', read_only=True),
+    'platform_frame': Param('brace_platform', 'frame of the moving platform', read_only=True),
+    # actuator (per actuator, SI)
+    'actuator.max_velocity': Param(0.065, 'actuator speed limit (m/s or rad/s)', (1e-4, 10.0), True),
+    'actuator.max_acceleration': Param(0.5, 'actuator acceleration limit', (1e-4, 100.0), True),
+    'actuator.max_force': Param(250.0, 'actuator force (N) or torque (N·m) limit', (0.0, 1e4), True),
+    'actuator.screw_lead': Param(0.001, 'm per motor revolution (linear actuators)', (1e-6, 1.0), True),
+    'actuator.encoder_counts_per_rev': Param(8192, 'encoder counts per motor revolution', (1, 1 << 24), True),
+    'actuator.load_cell_rated_force': Param(300.0, 'load-cell full scale (N)', (1.0, 1e5), True),
+    'actuator.load_cell_n_per_count': Param(0.01, 'load-cell scaling (N per count)', (1e-9, 1e3), True),
+    # trajectory
+    'trajectory.rate_hz': Param(200.0, 'setpoint rate (Hz)', (1.0, 2000.0)),
+    'trajectory.profile': Param('minimum_jerk', 'motion profile',
+                                choices=('minimum_jerk', 'scurve', 'logcosh')),
+    'trajectory.max_velocity': Param([0.03, 0.03, 0.3], 'platform velocity limit per axis'),
+    'trajectory.max_acceleration': Param([0.1, 0.1, 1.0], 'platform acceleration limit per axis'),
+    'trajectory.max_jerk': Param([1.0, 1.0, 10.0], 'platform jerk limit per axis'),
+    'trajectory.fitts_a': Param(0.2, "Fitts' law intercept a (s)", (0.0, 60.0)),
+    'trajectory.fitts_b': Param(0.3, "Fitts' law slope b (s/bit)", (0.0, 60.0)),
+    'trajectory.fitts_w': Param(0.01, "Fitts' law target width W (m)", (1e-6, 10.0)),
+    'trajectory.path_check_samples': Param(200, 'samples of a path checked against the limits', (2, 100000)),
+    # CAN
+    'can.interface': Param('virtual', 'python-can interface (virtual, socketcan, ...)', read_only=True),
+    'can.channel': Param('brace0', 'python-can channel', read_only=True),
+    'can.bitrate': Param(1000000, 'bit rate (bit/s)', (10000, 1000000), True),
+    'can.node_ids': Param([1, 2, 3], 'CANopen node id per actuator, in actuator order', read_only=True),
+    'can.eds': Param('lumbar_drive.eds', 'EDS file of the drives (relative to the YAML)', read_only=True),
+    'can.sync_rate_hz': Param(500.0, 'SYNC / control rate (Hz)', (1.0, 2000.0), True),
+    'can.joint_state_rate_hz': Param(100.0, 'joint_states publish rate (Hz)', (1.0, 2000.0)),
+    'can.boot_timeout': Param(3.0, 'wait for boot-up / first heartbeat (s)', (0.05, 60.0), True),
+    'can.drive_heartbeat_ms': Param(50, 'drive heartbeat producer time 1017h (ms)', (1, 10000), True),
+    'can.heartbeat_consumer_ms': Param(150, "master's timeout on a drive's heartbeat (ms)", (1, 30000), True),
+    'can.master_heartbeat_ms': Param(50, "master's heartbeat producer time (ms)", (1, 10000), True),
+    'can.master_node_id': Param(127, "master's node id", (1, 127), True),
+    'can.homing_method': Param(35, 'CiA 402 homing method 6098h', (-128, 127), True),
+    'can.frame_log': Param('', 'python-can log of the bus (.asc/.blf/.log), empty = none', read_only=True),
+    'can.sim': Param(True, 'start the simulated brace on the bus', read_only=True),
+    # safety (SAFETY.md): read-only at run time
+    'safety.command_timeout': Param(0.015, 'setpoint staleness -> hold (s)', (0.001, 5.0), True),
+    'safety.following_error_window': Param(0.003, 'following error window 6065h (m or rad)', (1e-6, 1.0), True),
+    'safety.path_tolerance': Param(0.005, 'tracking error -> abort and hold (m or rad)', (1e-6, 1.0), True),
+    'safety.step_margin': Param(0.0005, 'margin on |dq| per cycle (m or rad)', (0.0, 1.0), True),
+    'safety.force_limit': Param(250.0, 'load-cell force / torque -> protective stop', (0.0, 1e5), True),
+    'safety.saturation_fraction': Param(0.95, 'load-cell saturation threshold (of full scale)', (0.5, 1.0), True),
+    'safety.stale_periods': Param(3, 'periods without sensor update -> fault', (1, 1000), True),
+    'safety.max_wrench': Param([150.0, 150.0, 30.0], 'platform wrench limit per axis', read_only=True),
+    # simulation
+    'sim.rest_pose': Param([0.0, 0.39, 0.0], "body's rest pose", read_only=True),
+    'sim.stiffness': Param([0.0] * 9, 'body stiffness (row-major dof x dof)', read_only=True),
+    'sim.damping': Param([0.0] * 9, 'body damping (row-major dof x dof)', read_only=True),
+    'sim.load_cell_noise': Param(0.05, 'load-cell noise std (N)', (0.0, 1e3), True),
+    'sim.load_cell_offset': Param(0.0, 'load-cell offset (N)', (-1e3, 1e3), True),
+    'sim.seed': Param(1, 'random seed of the simulator', (0, 2**31 - 1), True),
+}
+
+
+def _descriptor(name: str, spec: Param) -> ParameterDescriptor:
+    d = ParameterDescriptor(description=spec.description, read_only=spec.read_only)
+    if spec.range is not None:
+        lo, hi = spec.range
+        if isinstance(spec.default, bool):
+            pass
+        elif isinstance(spec.default, int):
+            d.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=0)]
+        elif isinstance(spec.default, float):
+            d.floating_point_range = [FloatingPointRange(from_value=float(lo), to_value=float(hi), step=0.0)]
+    if spec.choices:
+        d.additional_constraints = f'one of {", ".join(spec.choices)}'
+    return d
+
+
+def _overrides(node: Node) -> dict[str, Any]:
+    """Parameter values the node was started with (params file, -p, overrides)."""
+    raw = getattr(node, '_parameter_overrides', {}) or {}
+    return {name: p.value for name, p in raw.items()}
+
+
+def _nest(cfg: dict[str, Any], dotted: str, value: Any) -> None:
+    keys = dotted.split('.')
+    node = cfg
+    for k in keys[:-1]:
+        node = node.setdefault(k, {})
+    node[keys[-1]] = value
+
+
+def declare_device_parameters(node: Node, sections: Iterable[str]) -> DeviceConfig:
+    """Declare the device parameters of ``sections`` on ``node`` and return them nested.
+
+    ``sections`` names top-level groups (``'mechanism'``, ``'trajectory'``, ``'can'``,
+    ``'safety'``, ``'actuator'``, ``'sim'``); ``device`` and the frames are always declared.
+
+    :raises ConfigError: a value of the wrong type, out of range, or not one of its
+        choices; the message names the parameter and what was expected.
+    """
+    sections = set(sections)
+    given = _overrides(node)
+    cfg: dict[str, Any] = {}
+
+    def declare(name: str, default: Any, descriptor: ParameterDescriptor) -> Any:
+        try:
+            value = node.declare_parameter(name, default, descriptor).value
+        except InvalidParameterValueException as exc:
+            raise ConfigError(
+                f'parameter {name!r} = {given.get(name)!r} is out of range: {exc}') from exc
+        except InvalidParameterTypeException as exc:
+            raise ConfigError(
+                f'parameter {name!r} = {given.get(name)!r} has the wrong type; expected '
+                f'{type(default).__name__} like {default!r}') from exc
+        return value
+
+    for name, spec in SCHEMA.items():
+        group = name.split('.', 1)[0] if '.' in name else None
+        if group is not None and group not in sections:
+            continue
+        value = declare(name, spec.default, _descriptor(name, spec))
+        if isinstance(value, (list, tuple)) or type(value).__name__ == 'array':
+            value = list(value)
+        if spec.choices and value not in spec.choices:
+            raise ConfigError(f'parameter {name!r} = {value!r}; expected one of {list(spec.choices)}')
+        if spec.length is not None and len(value) != spec.length:
+            raise ConfigError(f'parameter {name!r} needs {spec.length} values, got {len(value)}')
+        _nest(cfg, name, value)
+
+    if 'mechanism' in sections:
+        mech_keys = sorted(k for k in given if k.startswith('mechanism.'))
+        if not mech_keys:
+            raise ConfigError(
+                'no mechanism.* parameters: start the node with the device file, '
+                '--ros-args --params-file config/<device>.yaml')
+        for name in mech_keys:
+            value = declare(name, given[name], ParameterDescriptor(
+                description='mechanism geometry (from the device file)', read_only=True))
+            if isinstance(value, (list, tuple)) or type(value).__name__ == 'array':
+                value = list(value)
+            _nest(cfg, name, value)
+    return DeviceConfig(cfg)
