@@ -78,6 +78,11 @@ SCHEMA: dict[str, Param] = {
     'can.homing_method': Param(35, 'CiA 402 homing method 6098h', (-128, 127), True),
     'can.frame_log': Param('', 'python-can log of the bus (.asc/.blf/.log), empty = none', read_only=True),
     'can.sim': Param(True, 'start the simulated brace on the bus', read_only=True),
+    'can.sync_spin_us': Param(300, 'SYNC thread: busy-wait before each deadline (us)', (0, 5000), True),
+    'can.sync_thread_priority': Param(0, 'SCHED_FIFO priority of the SYNC thread, 0 = normal '
+                                      'scheduling (needs CAP_SYS_NICE)', (0, 99), True),
+    'can.gil_switch_interval_us': Param(500, "driver process: Python's GIL switch interval (us), "
+                                        "0 = keep Python's 5000 us", (0, 100000), True),
     # safety (SAFETY.md): read-only at run time
     'safety.command_timeout': Param(0.015, 'setpoint staleness -> hold (s)', (0.001, 5.0), True),
     'safety.following_error_window': Param(0.003, 'following error window 6065h (m or rad)', (1e-6, 1.0), True),
@@ -88,9 +93,10 @@ SCHEMA: dict[str, Param] = {
     'safety.stale_periods': Param(3, 'periods without sensor update -> fault', (1, 1000), True),
     'safety.max_wrench': Param([150.0, 150.0, 30.0], 'platform wrench limit per axis', read_only=True),
     # simulation
-    'sim.rest_pose': Param([0.0, 0.39, 0.0], "body's rest pose", read_only=True),
+    'sim.rest_pose': Param([0.0, 0.39, 0.0872664626], "body's rest pose", read_only=True),
     'sim.stiffness': Param([0.0] * 9, 'body stiffness (row-major dof x dof)', read_only=True),
     'sim.damping': Param([0.0] * 9, 'body damping (row-major dof x dof)', read_only=True),
+    'sim.leg_stiffness': Param(1.0e6, 'axial stiffness of each actuator leg (N/m)', (1.0, 1e12), True),
     'sim.load_cell_noise': Param(0.05, 'load-cell noise std (N)', (0.0, 1e3), True),
     'sim.load_cell_offset': Param(0.0, 'load-cell offset (N)', (-1e3, 1e3), True),
     'sim.seed': Param(1, 'random seed of the simulator', (0, 2**31 - 1), True),

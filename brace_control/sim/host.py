@@ -1,0 +1,194 @@
+"""Simulated drives on a python-can bus: one bus object, one Notifier, one timer thread.
+
+:class:`SimBus` owns its own python-can bus object on the master's channel (python-can
+``virtual`` buses on the same channel in one process see each other's frames), receives
+with a :class:`can.Notifier` and dispatches: SYNC to the SYNC handler (a
+:class:`~brace_control.sim.brace.SimulatedBrace`, or each drive), everything else to
+every drive's :meth:`~brace_control.sim.drive.SimulatedDrive.on_frame`. A single timer
+thread runs the drives' heartbeats, heartbeat-consumer timeouts and TPDO event timers.
+
+Bus-off of the simulated side (:attr:`SimBus.bus_off`): the drives neither send nor
+receive (see :mod:`brace_control.sim.faults` for the master's side).
+"""
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import can
+
+from .drive import SimulatedDrive
+
+__all__ = ['SimBus', 'SyncHandler']
+
+log = logging.getLogger(__name__)
+
+SyncHandler = Callable[[float], None]
+"""``handler(dt)``: called on every SYNC with the time step in seconds."""
+
+
+class SimBus:
+    """Put :class:`SimulatedDrive` objects on a CAN bus.
+
+    :param channel: python-can channel (the master's, e.g. ``'brace0'``).
+    :param interface: python-can interface (``'virtual'``).
+    :param sync_handler: called on SYNC with ``dt`` instead of ``drive.on_sync(dt)`` for
+        each drive (the brace runs motion, physics, then the TPDOs).
+    :param dt_source: ``'1006h'``: the SYNC period is the first drive's communication
+        cycle period 1006h (deterministic physics; falls back to the measured interval
+        when 1006h is 0); ``'measured'``: the time between SYNC frames (clamped to 0.1 s).
+    :param bus_kwargs: passed to :class:`can.Bus`.
+
+    Use as a context manager, or :meth:`start` / :meth:`shutdown` (idempotent).
+    """
+
+    def __init__(self, channel: str, *, interface: str = 'virtual',
+                 sync_handler: SyncHandler | None = None, dt_source: str = '1006h',
+                 **bus_kwargs: Any) -> None:
+        if dt_source not in ('1006h', 'measured'):
+            raise ValueError(f"dt_source must be '1006h' or 'measured', got {dt_source!r}")
+        self.channel = channel
+        self.interface = interface
+        self.drives: list[SimulatedDrive] = []
+        self.sync_handler = sync_handler
+        self.dt_source = dt_source
+        self._bus_kwargs = bus_kwargs
+        self.bus: can.BusABC | None = None
+        self._notifier: can.Notifier | None = None
+        self._timer: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._wake = threading.Event()
+        self.bus_off = False
+        self.sync_count = 0
+        self.last_sync_time: float | None = None   # monotonic
+        self.error_frames_seen = 0
+        self.send_errors = 0
+        self._sync_ids: frozenset[int] = frozenset({0x80})
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def add(self, drive: SimulatedDrive) -> SimulatedDrive:
+        """Attach a drive (before :meth:`start`, or it is powered on at once)."""
+        drive.attach(self._send)
+        self.drives.append(drive)
+        if self.bus is not None:
+            drive.power_on()
+            self._wake.set()
+        return drive
+
+    def drive(self, node_id: int) -> SimulatedDrive:
+        """The drive with this node id (KeyError if none)."""
+        for d in self.drives:
+            if d.node_id == node_id:
+                return d
+        raise KeyError(f'no simulated drive with node id {node_id}')
+
+    def start(self) -> 'SimBus':
+        """Open the bus, start receiving, power on every drive (boot-up messages)."""
+        if self.bus is not None:
+            return self
+        self.bus = can.Bus(interface=self.interface, channel=self.channel, **self._bus_kwargs)
+        self._notifier = can.Notifier(self.bus, [self._on_message], timeout=0.1)
+        self._stop.clear()
+        for d in self.drives:
+            d.power_on()
+        self._timer = threading.Thread(target=self._timer_loop, name=f'sim-timer-{self.channel}',
+                                       daemon=True)
+        self._timer.start()
+        return self
+
+    def shutdown(self) -> None:
+        """Stop the timer and the Notifier, close the bus. Idempotent."""
+        self._stop.set()
+        self._wake.set()
+        if self._timer is not None:
+            self._timer.join(timeout=1.0)
+            self._timer = None
+        if self._notifier is not None:
+            self._notifier.stop(timeout=1.0)
+            self._notifier = None
+        if self.bus is not None:
+            self.bus.shutdown()
+            self.bus = None
+
+    def __enter__(self) -> 'SimBus':
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.shutdown()
+
+    # ------------------------------------------------------------------ transmit
+
+    def _send(self, cob_id: int, data: bytes) -> None:
+        bus = self.bus
+        if bus is None or self.bus_off:
+            return
+        try:
+            bus.send(can.Message(arbitration_id=cob_id, data=data, is_extended_id=False))
+        except can.CanError as exc:    # a full queue or closed bus: the frame is lost
+            self.send_errors += 1
+            log.debug('sim send 0x%03X failed: %s', cob_id, exc)
+
+    def send_raw(self, msg: can.Message) -> None:
+        """Put any frame on the bus (error frames for fault injection); dropped in bus-off."""
+        if self.bus is not None and not self.bus_off:
+            self.bus.send(msg)
+
+    # ------------------------------------------------------------------ receive
+
+    def _on_message(self, msg: can.Message) -> None:
+        if msg.is_error_frame:
+            self.error_frames_seen += 1
+            return
+        if self.bus_off or msg.is_remote_frame or msg.is_extended_id:
+            return
+        cob = msg.arbitration_id
+        if cob in self._sync_ids:
+            self._on_sync()
+            return
+        data = bytes(msg.data)
+        t = time.monotonic()
+        for d in self.drives:
+            d.on_frame(cob, data, t)
+        if cob == 0 or 0x600 <= cob <= 0x67F:
+            # NMT or SDO may have changed 1005h/1006h/1017h: refresh and wake the timer
+            self._sync_ids = frozenset(d.sync_cob_id for d in self.drives) or frozenset({0x80})
+            self._wake.set()
+
+    def _on_sync(self) -> None:
+        now = time.monotonic()
+        measured = 0.0 if self.last_sync_time is None else now - self.last_sync_time
+        self.last_sync_time = now
+        self.sync_count += 1
+        dt = measured
+        if self.dt_source == '1006h' and self.drives:
+            period_us = self.drives[0]._store.get((0x1006, 0), 0)
+            if period_us:
+                dt = period_us * 1e-6
+        dt = min(max(dt, 0.0), 0.1)
+        try:
+            if self.sync_handler is not None:
+                self.sync_handler(dt)
+            else:
+                for d in self.drives:
+                    d.on_sync(dt)
+        except Exception:   # noqa: BLE001 - never kill the Notifier thread
+            log.exception('simulated SYNC handling failed')
+
+    # ------------------------------------------------------------------ timers
+
+    def _timer_loop(self) -> None:
+        while not self._stop.is_set():
+            now = time.monotonic()
+            nxt = now + 0.05
+            # also in bus-off: the drives' consumer timeouts expire (their sends are dropped)
+            for d in self.drives:
+                try:
+                    nxt = min(nxt, d.tick(now))
+                except Exception:   # noqa: BLE001 - never kill the timer thread
+                    log.exception('simulated drive %d timer failed', d.node_id)
+            self._wake.wait(max(0.0, nxt - time.monotonic()))
+            self._wake.clear()
