@@ -33,6 +33,7 @@ setup(
             'brace-bag = brace_control.bag:main',
             'brace-workspace = brace_control.tools.workspace:main',
             'brace-kinematics = brace_control.tools.kinematics:main',
+            'brace-fourbar-report = brace_control.tools.fourbar_report:main',
         ],
     },
 )

@@ -5,12 +5,13 @@
 """
 from .base import Mechanism, SingularPose, UnreachablePose
 from .loader import MECHANISM_TYPES, load_mechanism, mechanism_from_config
+from .fourbar import HoekenFourBar
 from .rpr3 import Rpr3
 from .rpr4 import Rpr4
 from .rr2 import Rr2
 from .rrr3 import Rrr3
 
 __all__ = [
-    'Mechanism', 'UnreachablePose', 'SingularPose', 'Rpr3', 'Rpr4', 'Rrr3', 'Rr2',
+    'Mechanism', 'UnreachablePose', 'SingularPose', 'Rpr3', 'Rpr4', 'Rrr3', 'Rr2', 'HoekenFourBar',
     'load_mechanism', 'mechanism_from_config', 'MECHANISM_TYPES',
 ]

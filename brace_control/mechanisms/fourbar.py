@@ -92,7 +92,6 @@ import numpy as np
 from ..config import ConfigError
 from .base import UnreachablePose, as_vector, check_limits
 from .loader import register
-from .planar import wrap_angle
 
 __all__ = [
     'HoekenFourBar', 'FourBarState', 'Kinetostatics', 'ExerciseProfile',
@@ -291,6 +290,11 @@ class HoekenFourBar:
         """Rest pose ``(x, y)`` of ``P`` (m), on the coupler curve."""
         return self._home.copy()
 
+    @property
+    def crank_inertia(self) -> float:
+        """Moment of inertia of the crank with its flywheel about ``O2`` (kg m^2)."""
+        return float(self._i[0] + self._m[0] * self._r2c ** 2)
+
     def __repr__(self) -> str:
         return (f'HoekenFourBar(ground={self.L1}, crank={self.L2}, coupler={self.L3}, rocker={self.L4}, '
                 f'coupler_extension={self.BP}, branch={self.branch!r})')
@@ -321,8 +325,8 @@ class HoekenFourBar:
 
     def forward_branch(self, theta2: float) -> np.ndarray:
         """``P = (x, y)`` (m) on the configured branch for a crank angle (rad)."""
-        p = self._positions(np.array(float(theta2)))[2]
-        return np.array([float(p.real), float(p.imag)])
+        p = self._curve_scalar(float(theta2))[0]
+        return np.array([p.real, p.imag])
 
     def forward(self, q: Sequence[float]) -> list[np.ndarray]:
         """Coupler point ``(x, y)`` for every assembly mode at crank angle ``q = [theta2]``.
@@ -363,27 +367,53 @@ class HoekenFourBar:
         st = self.analysis(theta, 1.0, 0.0)
         return st.p, st.vp, st.ap
 
+    def _curve_scalar(self, th: float) -> tuple[complex, complex, complex]:
+        """:meth:`_curve_derivatives` for one angle in plain Python (the fast path of the projection)."""
+        e2 = complex(math.cos(th), math.sin(th))
+        a = self.L2 * e2
+        d = self.L1 - a
+        dist = abs(d)
+        u = d / dist
+        along = (self.L3 ** 2 - self.L4 ** 2 + dist * dist) / (2.0 * dist)
+        b = a + along * u + self._sigma * math.sqrt(max(self.L3 ** 2 - along * along, 0.0)) * 1j * u
+        e3 = (b - a) / self.L3
+        e4 = (b - self.L1) / self.L4
+        s34 = (e4.conjugate() * e3).imag
+        va = 1j * self.L2 * e2
+        w3 = (e4.conjugate() * va).real / (self.L3 * s34)
+        w4 = (e3.conjugate() * va).real / (self.L4 * s34)
+        aa = -self.L2 * e2
+        rr = aa - self.L3 * w3 * w3 * e3 + self.L4 * w4 * w4 * e4
+        al3 = (e4.conjugate() * rr).real / (self.L3 * s34)
+        return (a + self.AP * e3, va + 1j * w3 * self.AP * e3, aa + self.AP * (1j * al3 - w3 * w3) * e3)
+
     def nearest_on_curve(self, pose: Sequence[float]) -> tuple[float, float]:
         """``(theta2, distance)``: the crank angle (rad, wrapped into the crank range) of
-        the coupler-curve point nearest ``pose`` (m) and its distance (m). No range check."""
+        the coupler-curve point nearest ``pose`` (m) and its distance (m). No range check.
+
+        Seeds: the two best local minima of the distance over the sampled curve; each is
+        refined by Newton on ``(P - target) . P' = 0``.
+        """
         pt = as_vector(pose, 2, 'pose')
         target = complex(pt[0], pt[1])
         dist = np.abs(self._curve_p - target)
         dist = np.where(np.isfinite(dist), dist, np.inf)
+        local = np.flatnonzero((dist <= np.roll(dist, 1)) & (dist <= np.roll(dist, -1)))
+        seeds = local[np.argsort(dist[local])][:2] if local.size else [int(np.argmin(dist))]
         best_t, best_d = 0.0, math.inf
-        for i in np.argsort(dist)[:3]:       # a few seeds: guards against a near tie
+        for i in seeds:
             th = float(self._curve_theta[i])
-            for _ in range(30):
-                p, dp, ddp = (complex(v) for v in self._curve_derivatives(np.array(th)))
+            for _ in range(40):
+                p, dp, ddp = self._curve_scalar(th)
                 r = p - target
-                g = (np.conj(r) * dp).real
-                hess = abs(dp) ** 2 + (np.conj(r) * ddp).real
+                g = (r.conjugate() * dp).real
+                hess = abs(dp) ** 2 + (r.conjugate() * ddp).real
                 step = -g / hess if hess > 0.0 else -g / max(abs(dp) ** 2, 1e-300)
                 step = max(-0.05, min(0.05, step))
                 th += step
-                if abs(step) < 1e-14:
+                if abs(step) < 1e-13:
                     break
-            d = abs(complex(self._curve_derivatives(np.array(th))[0]) - target)
+            d = abs(self._curve_scalar(th)[0] - target)
             if d < best_d:
                 best_t, best_d = th, d
         return self._wrap_q(best_t), float(best_d)
@@ -488,9 +518,9 @@ class HoekenFourBar:
         cur = float(theta_start)
         for k, xk in enumerate(x):
             for _ in range(50):
-                p, dp, _ = self._curve_derivatives(np.array(cur))
-                f = float(p.real) - xk
-                d = float(dp.real)
+                p, dp, _ = self._curve_scalar(cur)
+                f = p.real - xk
+                d = dp.real
                 if abs(d) < 1e-12:
                     raise ValueError(f'follow_x: vertical tangent of the coupler curve at crank angle '
                                      f'{math.degrees(cur):.2f} deg: x cannot parametrise the path')
@@ -498,7 +528,7 @@ class HoekenFourBar:
                 cur += step
                 if abs(step) < 1e-14:
                     break
-            if abs(float(self._curve_derivatives(np.array(cur))[0].real) - xk) > 1e-9:
+            if abs(self._curve_scalar(cur)[0].real - xk) > 1e-9:
                 raise ValueError(f'follow_x: x = {xk:.5f} m not reached along the coupler curve '
                                  f'(sample {k}, crank angle {math.degrees(cur):.2f} deg)')
             th[k] = cur
@@ -541,7 +571,7 @@ class HoekenFourBar:
         cur = float(theta_start)
         for k in range(q.size):
             for _ in range(50):
-                pp, dp, ddp = (complex(x) for x in self._curve_derivatives(np.array(cur)))
+                pp, dp, ddp = self._curve_scalar(cur)
                 r = pp - q[k]
                 gg = abs(dp) ** 2 + dot(r, ddp)
                 if gg <= 0.0:
@@ -641,8 +671,8 @@ class HoekenFourBar:
     # ------------------------------------------------------------------ differential protocol
     def tangent(self, pose: Sequence[float]) -> np.ndarray:
         """``dP/dtheta2`` (m/rad) at ``pose`` (on the curve, or projected within tolerance)."""
-        th = self.inverse(pose)[0]
-        dp = complex(self._curve_derivatives(np.array(th))[1])
+        th = float(self.inverse(pose)[0])
+        dp = self._curve_scalar(th)[1]
         return np.array([dp.real, dp.imag])
 
     def jacobian(self, pose: Sequence[float]) -> np.ndarray:
