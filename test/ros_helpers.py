@@ -1,0 +1,96 @@
+"""rclpy helpers for node tests: a private Context per test, spinning until a condition.
+
+Import the fixture into a test module (``from ros_helpers import ros  # noqa: F401``).
+No fixed sleeps: tests spin the executor until what they wait for has happened, with a
+timeout that fails the test with a message.
+"""
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+REPO = Path(__file__).resolve().parent.parent
+LUMBAR_YAML = REPO / 'config' / 'lumbar_brace.yaml'
+
+RELIABLE_10 = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+
+
+def params_args(path: str | Path = LUMBAR_YAML, **overrides: Any) -> list[str]:
+    """``cli_args`` that give a node the device file, as ``ros2 run`` would."""
+    args = ['--ros-args', '--params-file', str(path)]
+    for name, value in overrides.items():
+        args += ['-p', f'{name}:={value}']
+    return args
+
+
+class Ros:
+    """A private rclpy context with one executor; nodes added to it are spun together."""
+
+    def __init__(self) -> None:
+        self.context = Context()
+        rclpy.init(context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.nodes: list[Node] = []
+
+    def add(self, node: Node) -> Node:
+        self.executor.add_node(node)
+        self.nodes.append(node)
+        return node
+
+    def node(self, name: str) -> Node:
+        """A plain helper node (test publishers and subscribers)."""
+        return self.add(Node(name, context=self.context))
+
+    def device_node(self, cls: type, path: str | Path = LUMBAR_YAML, **overrides: Any) -> Node:
+        return self.add(cls(context=self.context, cli_args=params_args(path, **overrides)))
+
+    def collect(self, node: Node, msg_type: type, topic: str, qos: Any = RELIABLE_10) -> list:
+        """Subscribe ``topic`` on ``node``; the returned list fills as messages arrive."""
+        box: list = []
+        node.create_subscription(msg_type, topic, box.append, qos)
+        return box
+
+    def spin_until(self, predicate: Callable[[], bool], timeout: float = 5.0,
+                   what: str = 'condition') -> None:
+        """Spin until ``predicate()`` is true; fail the test after ``timeout`` seconds."""
+        deadline = time.monotonic() + timeout
+        while not predicate():
+            if time.monotonic() > deadline:
+                pytest.fail(f'timed out after {timeout} s waiting for {what}')
+            self.executor.spin_once(timeout_sec=0.01)
+
+    def spin_for(self, duration: float) -> None:
+        """Spin for ``duration`` seconds (to show that something does NOT happen)."""
+        deadline = time.monotonic() + duration
+        while time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.01)
+
+    def wait_matched(self, publisher: Any, count: int = 1, timeout: float = 5.0) -> None:
+        """Discovery: spin until ``publisher`` sees ``count`` subscriptions."""
+        self.spin_until(lambda: publisher.get_subscription_count() >= count, timeout,
+                        f'{count} subscriber(s) on {publisher.topic_name}')
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        for node in self.nodes:
+            node.destroy_node()
+        rclpy.shutdown(context=self.context)
+
+
+@pytest.fixture
+def ros():
+    """A fresh :class:`Ros` (own Context and executor), shut down after the test."""
+    r = Ros()
+    try:
+        yield r
+    finally:
+        r.close()
