@@ -34,6 +34,8 @@ setup(
             'brace-workspace = brace_control.tools.workspace:main',
             'brace-kinematics = brace_control.tools.kinematics:main',
             'brace-fourbar-report = brace_control.tools.fourbar_report:main',
+            'brace-spm-study = brace_control.tools.spm_study:main',
+            'brace-continuum-plot = brace_control.tools.continuum_plot:main',
         ],
     },
 )

@@ -1,0 +1,439 @@
+"""2-DOF planar continuum parallel robot (seed paper 003, Altuzarra et al.).
+
+Two slender bars of length ``L`` (bending stiffness ``EI``) are clamped at 45 deg on two
+sliders on one guide (the x axis) and welded together at 90 deg at the end effector.
+Moving the sliders together raises the end effector (the bars buckle, compression),
+moving them apart lowers it (tension). Mode 1 only, as the paper argues.
+
+Frames and coordinates
+----------------------
+Base frame: x along the guide, y up (the side of the bars), origin anywhere on the
+guide. Actuators: slider positions ``s1 < s2`` (m) along x, bar 1 clamped on slider 1
+leaving at +45 deg, bar 2 on slider 2 at 135 deg. Pose ``(x, y)``: the weld point
+(m). With no load the robot is mirror-symmetric about ``x = (s1 + s2) / 2``, the weld
+does not rotate, and (Newton's third law + symmetry) the force between the bars is
+horizontal (parallel to the guide): ``x = (s1 + s2) / 2`` and ``y = Y(d)`` with
+``d = (s2 - s1) / 2`` the slider half-distance. Undeformed: ``d0 = y0 = L / sqrt 2``.
+
+The elastica (paper eqs. 1.1-1.15)
+----------------------------------
+Each bar, in its own frame (x' along the clamp direction, 45 deg; the paper's "rotate
+45 deg clockwise"), is clamped at both ends with zero slope: ``theta(0) = theta(L) = 0``.
+Bernoulli-Euler ``EI theta' = M`` with the end force ``R`` at angle ``psi`` *acting on the
+bar at the weld* gives ``theta'' = lambda^2 sin(theta - psi)``, ``lambda^2 = R / EI``
+(eq. 1.4). The paper's substitution ``cos((psi - theta) / 2) = k sin(phi)`` (eq. 1.8)
+turns arc length into ``lambda ds = dphi / sqrt(1 - k^2 sin^2 phi)``, so (eq. 1.11)::
+
+    lambda L = F(k, phi2) - F(k, phi1),   phi1 = asin(cos(psi/2) / k),   phi2 = pi - phi1 (mode 1)
+
+and the end of the bar (eq. 1.15 and the analogous ``y'``), integrating
+``dx' = cos(theta) ds``, ``dy' = sin(theta) ds``::
+
+    lambda x' = cos(psi) [F - F1 - 2 (E - E1)] - 2 sigma k sin(psi) (cos phi - cos phi1)
+    lambda y' = sin(psi) [F - F1 - 2 (E - E1)] + 2 sigma k cos(psi) (cos phi - cos phi1)
+
+``F = F(k, phi)``, ``E = E(k, phi)`` the incomplete elliptic integrals
+(``scipy.special.ellipkinc/ellipeinc`` with parameter ``m = k^2``), ``sigma`` the sign of
+``sin((psi - theta) / 2) = +-sqrt(1 - k^2 sin^2 phi)``, constant along the bar for
+``k < 1`` (``sigma = sign(sin(psi / 2))``). Note on eq. 1.15: as printed
+(``+ 2 k sin(psi) [cos phi - cos phi1]``) it is the ``sigma = -1`` case; for the
+compression branch (``psi = 135 deg``, ``sigma = +1``) the sign is minus (checked against
+the boundary-value solution in the tests).
+
+Equilibrium at the weld fixes ``psi``: compression ``psi = 135 deg`` (global -x on bar
+1); tension ``psi = 315 deg``, used as ``psi = -45 deg`` because the parametrisation
+needs ``cos(psi / 2) > 0`` for ``k > 0`` (the paper: "negative for the range
+``[-k_min, -1]``"). On each branch ``k`` runs from ``k_min = |cos(psi / 2)|`` (straight bar,
+``R = 0``) to 1 (``R -> inf``). The robot: the bar end in global coordinates is
+``(d, y) = ((x' - y') / sqrt 2, (x' + y') / sqrt 2)`` relative to slider 1.
+
+The general procedure of the paper (given the end ``(a, b)`` of a clamped-clamped bar,
+iterate on ``psi`` and ``k``) is :func:`solve_bar`; for the robot ``psi`` is known and
+only ``k`` is iterated (a bracketed 1-D root, :func:`scipy.optimize.brentq`).
+
+Inverse: height ``y`` -> ``d`` (branch by ``y >< y0``); forward: ``d`` -> ``y`` and the bar
+force. Both are monotonic along each branch over the default reach; a height beyond
+mode 1's reach (``k -> 1``, or the sliders meeting) raises :class:`~.base.UnreachablePose`
+with the reason.
+
+Slider forces and wrench
+------------------------
+The horizontal force of bar 2 on bar 1 at the weld is ``H = R cos(psi_global)``
+(negative in compression); slider 1 holds bar 1 with ``-H``, slider 2 with ``+H`` (push
+along +x positive): ``f0(q) = (-H, H)``, the no-load slider forces. The model has no
+external load, so :meth:`Continuum2.wrench` is a first-order estimate: the end-effector
+force ``W = J^T (f - f0(q))`` (virtual work on the rigid-body part; valid for small loads).
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.optimize import brentq, fsolve
+from scipy.special import ellipeinc, ellipkinc
+
+from ..config import ConfigError
+from .base import UnreachablePose, as_vector, check_limits
+from .loader import register
+
+__all__ = ['Continuum2', 'bar_end', 'solve_bar', 'BarState', 'PSI_COMPRESSION', 'PSI_TENSION']
+
+PSI_COMPRESSION = math.radians(135.0)
+#: 315 deg, written -45 deg so that cos(psi/2) > 0 (k > 0)
+PSI_TENSION = math.radians(-45.0)
+_SQRT2 = math.sqrt(2.0)
+
+
+def bar_end(k: float | np.ndarray, psi: float, length: float, ei: float
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """End ``(x', y')`` (m) of a mode-1 clamped-clamped bar and its end force ``R`` (N).
+
+    Bar frame: clamp at the origin along +x', both end slopes 0. ``k`` in
+    ``(|cos(psi/2)|, 1)``; vectorised over ``k``. At ``k = k_min`` the bar is straight
+    (``x' = L``, ``y' = 0``, ``R = 0``).
+    """
+    kk = np.asarray(k, dtype=float)
+    m = kk * kk
+    c2 = math.cos(0.5 * psi)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        phi1 = np.arcsin(np.clip(c2 / kk, -1.0, 1.0))
+        phi2 = math.pi - phi1
+        f12 = ellipkinc(phi2, m) - ellipkinc(phi1, m)            # = lambda L  (eq. 1.11)
+        e12 = ellipeinc(phi2, m) - ellipeinc(phi1, m)
+        dcos = np.cos(phi2) - np.cos(phi1)                        # = -2 cos(phi1)
+        core = f12 - 2.0 * e12
+        lam = f12 / length
+        sk = math.copysign(1.0, math.sin(0.5 * psi)) * kk          # sigma k
+        xp = (math.cos(psi) * core - 2.0 * sk * math.sin(psi) * dcos) / lam
+        yp = (math.sin(psi) * core + 2.0 * sk * math.cos(psi) * dcos) / lam
+    force = ei * lam * lam
+    straight = ~(f12 > 0.0)
+    if np.any(straight):
+        xp = np.where(straight, length, xp)
+        yp = np.where(straight, 0.0, yp)
+        force = np.where(straight, 0.0, force)
+    return xp, yp, force
+
+
+def solve_bar(a: float, b: float, length: float, ei: float, *, psi0: float = PSI_COMPRESSION,
+              k0: float | None = None) -> tuple[float, float, float]:
+    """The paper's general procedure: end ``(a, b)`` (bar frame, m) -> ``(psi, k, R)``, mode 1.
+
+    Iterates on ``psi`` and ``k`` (``scipy.optimize.fsolve`` on eqs. 1.11-1.15, starting at
+    ``psi0`` and ``k0``) until the end matches ``(a, b)``.
+
+    :raises UnreachablePose: no convergence (e.g. an end outside mode 1's reach).
+    """
+    c2 = abs(math.cos(0.5 * psi0))
+    if k0 is None:
+        k0 = 0.5 * (c2 + 1.0)
+
+    def res(z: np.ndarray) -> np.ndarray:
+        psi, k = float(z[0]), float(z[1])
+        if not (abs(math.cos(0.5 * psi)) < k < 1.0):
+            return np.array([1e3, 1e3])
+        xp, yp, _ = bar_end(k, psi, length, ei)
+        return np.array([float(xp) - a, float(yp) - b]) / length
+
+    sol, info, ier, msg = fsolve(res, [psi0, k0], full_output=True, xtol=1e-13)
+    if ier != 1 or np.max(np.abs(res(sol))) > 1e-10:
+        raise UnreachablePose(f'bar end ({a:.5f}, {b:.5f}) m: no mode-1 elastica found ({msg.strip()})')
+    psi, k = float(sol[0]), float(sol[1])
+    return psi, k, float(bar_end(k, psi, length, ei)[2])
+
+
+@dataclass(frozen=True)
+class BarState:
+    """One solved configuration of the robot (no load)."""
+
+    d: float          #: slider half-distance (m)
+    y: float          #: end-effector height above the guide (m)
+    k: float          #: elliptic modulus
+    psi: float        #: end-force angle in the bar frame (rad): 135 deg or -45 (= 315) deg
+    force: float      #: R, the force between the bars (N), >= 0
+    horizontal: float  #: H, global x-force of bar 2 on bar 1 (N): < 0 compression, > 0 tension
+
+    @property
+    def branch(self) -> str:
+        return 'compression' if self.horizontal < 0 else ('tension' if self.horizontal > 0 else 'straight')
+
+
+@register('continuum2')
+class Continuum2:
+    """The 2-DOF continuum parallel robot; see the module docstring.
+
+    :param bar_length: ``L`` (m), each bar.
+    :param youngs_modulus: ``E`` (Pa); PTFE 4 GPa as the paper states.
+    :param width: bar cross-section width (m, out of plane).
+    :param thickness: bar thickness (m, in the bending plane): ``I = width thickness^3 / 12``.
+    :param stroke: ``(lo, hi)`` slider position range (m), each a scalar or two values.
+    :param actuator_names: two distinct names (slider 1, slider 2).
+    :param home_pose: rest pose ``(x, y)`` (m); default the undeformed robot centred in the stroke.
+    :param k_max: the largest modulus used (reach limit of each branch, ``k -> 1`` is
+        ``R -> inf``); default ``1 - 1e-6``.
+    :param min_half_distance: sliders closer than ``2 * this`` (m) collide; default 0.
+    """
+
+    dof: int = 2
+    n_actuators: int = 2
+    pose_kind: str = 'xy'
+
+    def __init__(self, bar_length: float, youngs_modulus: float, width: float, thickness: float,
+                 stroke: tuple[Any, Any], *, actuator_names: Sequence[str] = ('s1', 's2'),
+                 home_pose: Sequence[float] | None = None, k_max: float = 1.0 - 1e-6,
+                 min_half_distance: float = 0.0) -> None:
+        vals = {}
+        for name, v in (('bar_length', bar_length), ('youngs_modulus', youngs_modulus),
+                        ('width', width), ('thickness', thickness)):
+            try:
+                f = float(v)
+            except (TypeError, ValueError):
+                f = math.nan
+            if not (math.isfinite(f) and f > 0.0):
+                raise ValueError(f'{name}: expected a positive number (SI), got {v!r}')
+            vals[name] = f
+        self.length = vals['bar_length']
+        self.youngs_modulus = vals['youngs_modulus']
+        self.width, self.thickness = vals['width'], vals['thickness']
+        #: bending stiffness EI (N·m^2)
+        self.ei = self.youngs_modulus * self.width * self.thickness ** 3 / 12.0
+        if isinstance(stroke, (str, bytes)) or len(stroke) != 2:
+            raise ValueError(f'stroke: expected (lo, hi) in m, got {stroke!r}')
+        lo = np.broadcast_to(np.asarray(stroke[0], float), (2,)).copy()
+        hi = np.broadcast_to(np.asarray(stroke[1], float), (2,)).copy()
+        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(hi > lo)):
+            raise ValueError(f'stroke: need finite lo < hi, got lo={lo.tolist()}, hi={hi.tolist()}')
+        self._lo, self._hi = lo, hi
+        names = (actuator_names,) if isinstance(actuator_names, str) else tuple(actuator_names)
+        if len(names) != 2 or not all(isinstance(n, str) and n for n in names) or len(set(names)) != 2:
+            raise ValueError(f'actuator_names: expected two distinct non-empty names, got {actuator_names!r}')
+        self.actuator_names: tuple[str, ...] = names
+        if not (0.5 < float(k_max) < 1.0):
+            raise ValueError(f'k_max: expected a modulus in (0.5, 1), got {k_max!r}')
+        self.k_max = float(k_max)
+        self.min_half_distance = float(min_half_distance)
+        if not (math.isfinite(self.min_half_distance) and self.min_half_distance >= 0.0):
+            raise ValueError(f'min_half_distance: expected >= 0 m, got {min_half_distance!r}')
+        #: undeformed half-distance and height (m)
+        self.d0 = self.y0 = self.length / _SQRT2
+        self._kmin = {PSI_COMPRESSION: abs(math.cos(0.5 * PSI_COMPRESSION)),
+                      PSI_TENSION: abs(math.cos(0.5 * PSI_TENSION))}
+        self._reach()
+        if home_pose is None:
+            mid = 0.5 * float(np.mean(lo) + np.mean(hi))
+            self._home = np.array([mid, self.y0])
+        else:
+            self._home = as_vector(home_pose, 2, 'home_pose')
+        self.inverse(self._home)
+
+    # ------------------------------------------------------------------ the elastica, per branch
+    def _branch_end(self, k: float | np.ndarray, psi: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(d, y, R)`` of the robot at modulus ``k`` on the branch ``psi``."""
+        xp, yp, force = bar_end(k, psi, self.length, self.ei)
+        return (xp - yp) / _SQRT2, (xp + yp) / _SQRT2, force
+
+    def _reach(self) -> None:
+        """Branch ends (k = k_max) and monotonicity check on a dense k grid."""
+        self._ends: dict[float, tuple[float, float]] = {}
+        for psi in (PSI_COMPRESSION, PSI_TENSION):
+            kmin = self._kmin[psi]
+            # dense in k near k_min (where d, y move fastest) and near 1 (R -> inf)
+            s = np.linspace(0.0, 1.0, 2001)[1:]
+            k = kmin + (self.k_max - kmin) * (1.0 - np.cos(0.5 * math.pi * s)) ** 1.0
+            d, y, _ = self._branch_end(k, psi)
+            sd, sy = np.sign(np.diff(d)), np.sign(np.diff(y))
+            if not (np.all(sd == sd[0]) and np.all(sy == sy[0])):
+                # not monotonic: keep the monotonic part from k_min (the reach ends at the first turn)
+                bad = np.flatnonzero((sd != sd[0]) | (sy != sy[0]))[0]
+                k_end = float(k[bad])
+            else:
+                k_end = self.k_max
+            de, ye, _ = self._branch_end(k_end, psi)
+            self._ends[psi] = (float(k_end), float(de), float(ye))  # type: ignore[assignment]
+        kc, dc, yc = self._ends[PSI_COMPRESSION]   # type: ignore[misc]
+        kt, dt, yt = self._ends[PSI_TENSION]       # type: ignore[misc]
+        #: heights reachable in mode 1 (m): (lowest in tension, highest in compression)
+        self.height_range = (float(yt), float(yc))
+        #: half-distances of the mode-1 reach (m): (closest in compression, widest in tension)
+        self.half_distance_range = (max(float(dc), self.min_half_distance), float(dt))
+
+    def _solve_branch(self, target: float, psi: float, which: int) -> BarState:
+        kmin = self._kmin[psi]
+        k_end = self._ends[psi][0]     # type: ignore[index]
+
+        def g(k: float) -> float:
+            return float(self._branch_end(k, psi)[which]) - target
+
+        lo = kmin * (1.0 + 1e-15)
+        k = brentq(g, lo, k_end, xtol=1e-16, rtol=1e-15, maxiter=200) if g(lo) * g(k_end) < 0 else (
+            lo if abs(g(lo)) <= abs(g(k_end)) else k_end)
+        d, y, force = self._branch_end(k, psi)
+        hx = force * math.cos(psi + math.pi / 4.0)   # bar-frame angle psi -> global angle psi + 45 deg
+        return BarState(float(d), float(y), float(k), psi, float(force), float(hx))
+
+    def solve_height(self, y: float) -> BarState:
+        """The no-load configuration with the end effector at height ``y`` (m), mode 1.
+
+        :raises UnreachablePose: ``y`` beyond mode 1's reach (the reason in the message).
+        """
+        ylo, yhi = self.height_range
+        if not (ylo <= y <= yhi):
+            side = ('above the highest point of the compression branch' if y > yhi
+                    else 'below the lowest point of the tension branch')
+            raise UnreachablePose(
+                f'height y = {y:.5f} m is beyond mode 1\'s reach: {side} (mode 1 reaches '
+                f'{ylo:.5f}-{yhi:.5f} m; beyond it the bars would need an infinite force or a higher '
+                'buckling mode, which the paper excludes)', value=float(y), limits=(ylo, yhi))
+        if y == self.y0:
+            return BarState(self.d0, self.y0, self._kmin[PSI_COMPRESSION], PSI_COMPRESSION, 0.0, 0.0)
+        psi = PSI_COMPRESSION if y > self.y0 else PSI_TENSION
+        st = self._solve_branch(y, psi, 1)
+        if st.d < self.min_half_distance:
+            raise UnreachablePose(f'height y = {y:.5f} m needs the sliders {2 * st.d:.5f} m apart, '
+                                  f'closer than the {2 * self.min_half_distance:.5f} m they can come')
+        return st
+
+    def solve_half_distance(self, d: float) -> BarState:
+        """The no-load configuration for slider half-distance ``d`` (m), mode 1.
+
+        :raises UnreachablePose: ``d`` beyond mode 1's reach.
+        """
+        dlo, dhi = self.half_distance_range
+        if not (dlo <= d <= dhi):
+            raise UnreachablePose(
+                f'slider half-distance d = {d:.5f} m is beyond mode 1\'s reach ({dlo:.5f}-{dhi:.5f} m)',
+                value=float(d), limits=(dlo, dhi))
+        if d == self.d0:
+            return BarState(self.d0, self.y0, self._kmin[PSI_COMPRESSION], PSI_COMPRESSION, 0.0, 0.0)
+        psi = PSI_COMPRESSION if d < self.d0 else PSI_TENSION
+        return self._solve_branch(d, psi, 0)
+
+    # ------------------------------------------------------------------ protocol
+    @property
+    def actuator_limits(self) -> tuple[np.ndarray, np.ndarray]:
+        """Slider position range ``(lo, hi)`` (m), arrays of shape (2,)."""
+        return self._lo.copy(), self._hi.copy()
+
+    @property
+    def home_pose(self) -> np.ndarray:
+        """Rest pose ``(x, y)`` (m)."""
+        return self._home.copy()
+
+    def __repr__(self) -> str:
+        return (f'Continuum2(bar_length={self.length} m, E={self.youngs_modulus:.3g} Pa, '
+                f'section {self.width * 1e3:.2f} x {self.thickness * 1e3:.2f} mm, EI={self.ei:.4g} N·m^2)')
+
+    def inverse(self, pose: Sequence[float]) -> np.ndarray:
+        """Slider positions ``(s1, s2)`` (m) for the end effector at ``pose = (x, y)`` (m).
+
+        :raises ValueError: malformed pose.
+        :raises UnreachablePose: beyond mode 1's reach, or a slider outside its stroke.
+        """
+        x, y = as_vector(pose, 2, 'pose')
+        st = self.solve_height(float(y))
+        q = np.array([x - st.d, x + st.d])
+        check_limits(q, self._lo, self._hi, self.actuator_names)
+        return q
+
+    def forward_state(self, q: Sequence[float]) -> tuple[np.ndarray, BarState]:
+        """End-effector position ``(x, y)`` (m) and the bar state for slider positions ``q``.
+
+        :raises ValueError: malformed ``q`` or ``s1 >= s2``.
+        :raises UnreachablePose: a half-distance beyond mode 1's reach.
+        """
+        s1, s2 = as_vector(q, 2, 'q')
+        if not s2 > s1:
+            raise ValueError(f'q: slider 1 must be left of slider 2 (s1 < s2), got s1={s1:.5f} m, s2={s2:.5f} m')
+        st = self.solve_half_distance(0.5 * (s2 - s1))
+        return np.array([0.5 * (s1 + s2), st.y]), st
+
+    def forward(self, q: Sequence[float]) -> list[np.ndarray]:
+        """Every mode-1 no-load configuration: one ``(x, y)`` (m), or ``[]`` beyond mode 1's reach."""
+        try:
+            return [self.forward_state(q)[0]]
+        except UnreachablePose:
+            return []
+
+    def forward_nearest(self, q: Sequence[float], hint_pose: Sequence[float]) -> np.ndarray:
+        """The (single) mode-1 solution; ``hint_pose`` is validated only.
+
+        :raises UnreachablePose: beyond mode 1's reach.
+        """
+        as_vector(hint_pose, 2, 'hint_pose')
+        return self.forward_state(q)[0]
+
+    def bar_force(self, q: Sequence[float]) -> float:
+        """``H`` (N): global x-force of bar 2 on bar 1 at the weld (< 0 compression)."""
+        return self.forward_state(q)[1].horizontal
+
+    def slope(self, y: float) -> float:
+        """``dd/dy`` at height ``y`` (central difference of the elliptic solution, step 1e-6 L)."""
+        h = 1e-6 * self.length
+        ylo, yhi = self.height_range
+        a, b = max(y - h, ylo), min(y + h, yhi)
+        return (self.solve_height(b).d - self.solve_height(a).d) / (b - a)
+
+    def jacobian(self, pose: Sequence[float]) -> np.ndarray:
+        """``J`` (2, 2) with ``q_dot = J @ (x_dot, y_dot)``: ``s1 = x - d(y)``, ``s2 = x + d(y)``.
+
+        ``d'(y)`` by a central finite difference of the elliptic solution (step ``1e-6 L``,
+        across the branch point at ``y0``, where ``d(y)`` is smooth).
+        """
+        _, y = as_vector(pose, 2, 'pose')
+        dd = self.slope(float(y))
+        return np.array([[1.0, -dd], [1.0, dd]])
+
+    def slider_forces_no_load(self, q: Sequence[float]) -> np.ndarray:
+        """``f0 = (-H, H)`` (N, push along +x positive): the slider forces with no load."""
+        h = self.forward_state(q)[1].horizontal
+        return np.array([-h, h])
+
+    def wrench(self, pose: Sequence[float], forces: Sequence[float]) -> np.ndarray:
+        """End-effector force ``(Fx, Fy)`` (N), first order: ``J^T (f - f0)`` (module docstring).
+
+        :param forces: slider forces (N), along +x positive.
+        """
+        f = as_vector(forces, 2, 'forces')
+        p = as_vector(pose, 2, 'pose')
+        q = self.inverse(p)
+        return self.jacobian(p).T @ (f - self.slider_forces_no_load(q))
+
+    def in_workspace(self, pose: Sequence[float]) -> bool:
+        """Within mode 1's reach and the strokes. :raises ValueError: malformed pose."""
+        p = as_vector(pose, 2, 'pose')
+        try:
+            self.inverse(p)
+            return True
+        except UnreachablePose:
+            return False
+
+    # ------------------------------------------------------------------ configuration
+    @classmethod
+    def from_config(cls, section: Mapping[str, Any]) -> 'Continuum2':
+        """Build from the YAML's ``mechanism`` section.
+
+        Reads ``bar_length``, ``youngs_modulus``, ``width``, ``thickness``, ``stroke_min``,
+        ``stroke_max``, ``actuator_names``, ``home_pose``, ``k_max``, ``min_half_distance``.
+
+        :raises ConfigError: a missing or malformed value, naming the parameter.
+        """
+        if not isinstance(section, Mapping):
+            raise ConfigError(f'mechanism: expected a mapping, got {type(section).__name__}')
+        kind = section.get('type', 'continuum2')
+        if kind != 'continuum2':
+            raise ConfigError(f'mechanism.type is {kind!r}, Continuum2 needs "continuum2"')
+        for key in ('bar_length', 'youngs_modulus', 'width', 'thickness', 'stroke_min', 'stroke_max'):
+            if key not in section:
+                raise ConfigError(f'parameter mechanism.{key} is missing')
+        kwargs: dict[str, Any] = {}
+        for key in ('actuator_names', 'home_pose', 'k_max', 'min_half_distance'):
+            if section.get(key) is not None:
+                kwargs[key] = section[key]
+        try:
+            return cls(section['bar_length'], section['youngs_modulus'], section['width'], section['thickness'],
+                       (section['stroke_min'], section['stroke_max']), **kwargs)
+        except (ValueError, TypeError) as exc:
+            raise ConfigError(f'mechanism: {exc}') from exc
