@@ -10,14 +10,12 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
-import platform
 import statistics
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
+from _timing import machine_line, per_call_us, repeat_seconds, summary_us
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
@@ -25,23 +23,6 @@ from brace_control.mechanisms import Rpr3, load_mechanism  # noqa: E402
 from brace_control.tools.workspace import workspace_map  # noqa: E402
 
 CONFIG = Path(__file__).resolve().parent.parent / 'config' / 'lumbar_brace.yaml'
-
-
-def per_call_us(fn, args_list) -> list[float]:
-    """Wall time of each call in microseconds."""
-    out = []
-    clock = time.perf_counter
-    for args in args_list:
-        t0 = clock()
-        fn(*args)
-        out.append((clock() - t0) * 1e6)
-    return out
-
-
-def summary_us(samples: list[float]) -> str:
-    s = sorted(samples)
-    return (f'median {statistics.median(s):7.1f} us, p10 {s[len(s) // 10]:7.1f} us, '
-            f'p90 {s[9 * len(s) // 10]:7.1f} us, n = {len(s)}')
 
 
 def main() -> int:
@@ -53,8 +34,7 @@ def main() -> int:
     args = parser.parse_args()
     rng = np.random.default_rng(args.seed)
 
-    print(f'python {platform.python_version()}, numpy {np.__version__}, {platform.machine()}, '
-          f'{os.cpu_count()} cpus, load avg {os.getloadavg()[0]:.2f}')
+    print(machine_line())
     brace = load_mechanism(CONFIG)
     assert isinstance(brace, Rpr3)
 
@@ -62,18 +42,10 @@ def main() -> int:
     n = args.ik_poses
     poses = np.column_stack([rng.uniform(-0.1, 0.1, n), rng.uniform(0.34, 0.44, n),
                              rng.uniform(-0.5, 0.5, n)])
-    times = []
-    for _ in range(args.repeat):
-        t0 = time.perf_counter()
-        brace.inverse_batch(poses)
-        times.append(time.perf_counter() - t0)
+    times = repeat_seconds(lambda: brace.inverse_batch(poses), args.repeat)
     print(f'IK inverse_batch, {n} poses: best {n / min(times) / 1e6:.2f} M poses/s, '
           f'median {n / statistics.median(times) / 1e6:.2f} M poses/s')
-    times = []
-    for _ in range(args.repeat):
-        t0 = time.perf_counter()
-        brace.reachable_batch(poses)
-        times.append(time.perf_counter() - t0)
+    times = repeat_seconds(lambda: brace.reachable_batch(poses), args.repeat)
     print(f'IK reachable_batch (lengths + stroke mask), {n} poses: '
           f'median {n / statistics.median(times) / 1e6:.2f} M poses/s')
     reachable = poses[:4 * args.fk_calls][brace.reachable_batch(poses[:4 * args.fk_calls])][:args.fk_calls]

@@ -9,14 +9,13 @@ Targets (issue 7): shoulder ``forward`` <= 1 ms per call; one design evaluation 
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import statistics
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
+from _timing import machine_line, per_call_us, repeat_seconds
+from _timing import summary_us as _summary_us
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
@@ -27,20 +26,8 @@ from brace_control.mechanisms.spherical import rotation_matrices  # noqa: E402
 from brace_control.tools.spm_study import evaluate_design, motion_grid  # noqa: E402
 
 
-def per_call_us(fn, args_list) -> list[float]:
-    out = []
-    clock = time.perf_counter
-    for args in args_list:
-        t0 = clock()
-        fn(*args)
-        out.append((clock() - t0) * 1e6)
-    return out
-
-
 def summary_us(s: list[float]) -> str:
-    s = sorted(s)
-    return (f'median {statistics.median(s):8.1f} us, p10 {s[len(s) // 10]:8.1f} us, '
-            f'p90 {s[9 * len(s) // 10]:8.1f} us, n = {len(s)}')
+    return _summary_us(s, width=8)
 
 
 def main() -> int:
@@ -51,8 +38,7 @@ def main() -> int:
     ap.add_argument('--seed', type=int, default=1)
     args = ap.parse_args()
     rng = np.random.default_rng(args.seed)
-    print(f'python {platform.python_version()}, numpy {np.__version__}, {platform.machine()}, '
-          f'{os.cpu_count()} cpus, load avg {os.getloadavg()[0]:.2f}')
+    print(machine_line())
 
     sh = load_mechanism(ROOT / 'config' / 'shoulder.yaml')
     poses = np.column_stack([rng.uniform(np.radians(lo), np.radians(hi), args.fk_calls)
@@ -73,18 +59,14 @@ def main() -> int:
     design = sh.design
     s_load = float(sh.load_forces @ sh.load_lever_arms)
     q_mats = rotation_matrices(motion_grid())
-    ts = []
-    for _ in range(args.repeat):
-        t0 = time.perf_counter()
-        r = evaluate_design(design, working_mode=sh.working_mode, load_moment_nm=s_load, q_mats=q_mats)
-        ts.append((time.perf_counter() - t0) * 1e3)
+    ts = [1e3 * t for t in repeat_seconds(
+        lambda: evaluate_design(design, working_mode=sh.working_mode, load_moment_nm=s_load, q_mats=q_mats),
+        args.repeat)]
+    r = evaluate_design(design, working_mode=sh.working_mode, load_moment_nm=s_load, q_mats=q_mats)
     print(f'design evaluation, 1320 poses:          median {statistics.median(ts):.2f} ms, '
           f'best {min(ts):.2f} ms (g1 {r.g1}, g2 {r.g2:.4f}, g3 {r.g3:.3f} N·m)')
-    ts = []
-    for _ in range(args.repeat):
-        t0 = time.perf_counter()
-        evaluate_design(design, working_mode=sh.working_mode, load_moment_nm=s_load)
-        ts.append((time.perf_counter() - t0) * 1e3)
+    ts = [1e3 * t for t in repeat_seconds(
+        lambda: evaluate_design(design, working_mode=sh.working_mode, load_moment_nm=s_load), args.repeat)]
     print(f'  same, including the 1320 rotation matrices: median {statistics.median(ts):.2f} ms')
 
     co = load_mechanism(ROOT / 'config' / 'continuum.yaml')

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from scipy.optimize import brentq
+from rpr_oracles import fk_thetas_by_sampling as count_roots
 
 from brace_control.mechanisms import Mechanism, SingularPose, UnreachablePose, load_mechanism
 from brace_control.mechanisms.rrr3 import Rrr3
@@ -45,30 +45,7 @@ def elbows_of(base, r, q) -> np.ndarray:
     return np.array([[bx + ri * math.cos(t), by + ri * math.sin(t)] for (bx, by), ri, t in zip(base, r, q)])
 
 
-def fk_residual(base, plat, lengths, theta: np.ndarray) -> np.ndarray:
-    """Independent 3-RPR forward residual g(theta) (legs 2, 3 minus leg 1, Cramer, leg 1)."""
-    a = np.asarray(base, float) - base[0]
-    b = np.asarray(plat, float) - plat[0]
-    l1, l2, l3 = lengths
-    c, s = np.cos(theta), np.sin(theta)
-    rows, rhs = [], []
-    for i, li in ((1, l2), (2, l3)):
-        rbx, rby = c * b[i, 0] - s * b[i, 1], s * b[i, 0] + c * b[i, 1]
-        rows.append((rbx - a[i, 0], rby - a[i, 1]))
-        rhs.append(0.5 * (li ** 2 - l1 ** 2 - a[i] @ a[i] - b[i] @ b[i] + 2 * (a[i, 0] * rbx + a[i, 1] * rby)))
-    (m2x, m2y), (m3x, m3y) = rows
-    det = m2x * m3y - m2y * m3x
-    px = rhs[0] * m3y - rhs[1] * m2y
-    py = m2x * rhs[1] - m3x * rhs[0]
-    return px ** 2 + py ** 2 - l1 ** 2 * det ** 2
-
-
-def count_roots(base, plat, lengths, n: int = 200_001) -> list[float]:
-    th = np.linspace(-math.pi, math.pi, n)
-    g = fk_residual(base, plat, lengths, th)
-    idx = np.flatnonzero(np.sign(g[1:]) != np.sign(g[:-1]))
-    return [brentq(lambda t: fk_residual(base, plat, lengths, np.array([t]))[0], th[i], th[i + 1], xtol=1e-14)
-            for i in idx]
+# count_roots: the independent 3-RPR forward oracle's roots (rpr_oracles.fk_thetas_by_sampling)
 
 
 def check_closure(mech, pose, q, mode=None, tol=1e-9) -> None:

@@ -75,8 +75,8 @@ import numpy as np
 from scipy.optimize import brentq, fsolve
 from scipy.special import ellipeinc, ellipkinc
 
-from ..config import ConfigError
-from .base import UnreachablePose, as_vector, check_limits
+from .base import (MechanismBase, UnreachablePose, as_actuator_names, as_positive, as_range, as_vector, check_limits,
+                   check_section, config_errors, section_kwargs)
 from .loader import register
 
 __all__ = ['Continuum2', 'bar_end', 'solve_bar', 'BarState', 'PSI_COMPRESSION', 'PSI_TENSION']
@@ -162,7 +162,7 @@ class BarState:
 
 
 @register('continuum2')
-class Continuum2:
+class Continuum2(MechanismBase):
     """The 2-DOF continuum parallel robot; see the module docstring.
 
     :param bar_length: ``L`` (m), each bar.
@@ -185,32 +185,14 @@ class Continuum2:
                  stroke: tuple[Any, Any], *, actuator_names: Sequence[str] = ('s1', 's2'),
                  home_pose: Sequence[float] | None = None, k_max: float = 1.0 - 1e-6,
                  min_half_distance: float = 0.0) -> None:
-        vals = {}
-        for name, v in (('bar_length', bar_length), ('youngs_modulus', youngs_modulus),
-                        ('width', width), ('thickness', thickness)):
-            try:
-                f = float(v)
-            except (TypeError, ValueError):
-                f = math.nan
-            if not (math.isfinite(f) and f > 0.0):
-                raise ValueError(f'{name}: expected a positive number (SI), got {v!r}')
-            vals[name] = f
-        self.length = vals['bar_length']
-        self.youngs_modulus = vals['youngs_modulus']
-        self.width, self.thickness = vals['width'], vals['thickness']
+        self.length = as_positive(bar_length, 'bar_length', unit='m')
+        self.youngs_modulus = as_positive(youngs_modulus, 'youngs_modulus', unit='Pa')
+        self.width = as_positive(width, 'width', unit='m')
+        self.thickness = as_positive(thickness, 'thickness', unit='m')
         #: bending stiffness EI (N·m^2)
         self.ei = self.youngs_modulus * self.width * self.thickness ** 3 / 12.0
-        if isinstance(stroke, (str, bytes)) or len(stroke) != 2:
-            raise ValueError(f'stroke: expected (lo, hi) in m, got {stroke!r}')
-        lo = np.broadcast_to(np.asarray(stroke[0], float), (2,)).copy()
-        hi = np.broadcast_to(np.asarray(stroke[1], float), (2,)).copy()
-        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(hi > lo)):
-            raise ValueError(f'stroke: need finite lo < hi, got lo={lo.tolist()}, hi={hi.tolist()}')
-        self._lo, self._hi = lo, hi
-        names = (actuator_names,) if isinstance(actuator_names, str) else tuple(actuator_names)
-        if len(names) != 2 or not all(isinstance(n, str) and n for n in names) or len(set(names)) != 2:
-            raise ValueError(f'actuator_names: expected two distinct non-empty names, got {actuator_names!r}')
-        self.actuator_names: tuple[str, ...] = names
+        self._lo, self._hi = lo, hi = as_range(stroke, 2, 'stroke', unit='m')
+        self.actuator_names: tuple[str, ...] = as_actuator_names(actuator_names, 2)
         if not (0.5 < float(k_max) < 1.0):
             raise ValueError(f'k_max: expected a modulus in (0.5, 1), got {k_max!r}')
         self.k_max = float(k_max)
@@ -312,16 +294,7 @@ class Continuum2:
         return self._solve_branch(d, psi, 0)
 
     # ------------------------------------------------------------------ protocol
-    @property
-    def actuator_limits(self) -> tuple[np.ndarray, np.ndarray]:
-        """Slider position range ``(lo, hi)`` (m), arrays of shape (2,)."""
-        return self._lo.copy(), self._hi.copy()
-
-    @property
-    def home_pose(self) -> np.ndarray:
-        """Rest pose ``(x, y)`` (m)."""
-        return self._home.copy()
-
+    # actuator_limits (slider positions, m) and home_pose (x, y, m): MechanismBase
     def __repr__(self) -> str:
         return (f'Continuum2(bar_length={self.length} m, E={self.youngs_modulus:.3g} Pa, '
                 f'section {self.width * 1e3:.2f} x {self.thickness * 1e3:.2f} mm, EI={self.ei:.4g} N·m^2)')
@@ -403,12 +376,7 @@ class Continuum2:
 
     def in_workspace(self, pose: Sequence[float]) -> bool:
         """Within mode 1's reach and the strokes. :raises ValueError: malformed pose."""
-        p = as_vector(pose, 2, 'pose')
-        try:
-            self.inverse(p)
-            return True
-        except UnreachablePose:
-            return False
+        return self._in_workspace(pose, singularity=False)
 
     # ------------------------------------------------------------------ configuration
     @classmethod
@@ -420,20 +388,9 @@ class Continuum2:
 
         :raises ConfigError: a missing or malformed value, naming the parameter.
         """
-        if not isinstance(section, Mapping):
-            raise ConfigError(f'mechanism: expected a mapping, got {type(section).__name__}')
-        kind = section.get('type', 'continuum2')
-        if kind != 'continuum2':
-            raise ConfigError(f'mechanism.type is {kind!r}, Continuum2 needs "continuum2"')
-        for key in ('bar_length', 'youngs_modulus', 'width', 'thickness', 'stroke_min', 'stroke_max'):
-            if key not in section:
-                raise ConfigError(f'parameter mechanism.{key} is missing')
-        kwargs: dict[str, Any] = {}
-        for key in ('actuator_names', 'home_pose', 'k_max', 'min_half_distance'):
-            if section.get(key) is not None:
-                kwargs[key] = section[key]
-        try:
+        check_section(section, 'continuum2', 'Continuum2',
+                      ('bar_length', 'youngs_modulus', 'width', 'thickness', 'stroke_min', 'stroke_max'))
+        kwargs = section_kwargs(section, given=('actuator_names', 'home_pose', 'k_max', 'min_half_distance'))
+        with config_errors():
             return cls(section['bar_length'], section['youngs_modulus'], section['width'], section['thickness'],
                        (section['stroke_min'], section['stroke_max']), **kwargs)
-        except (ValueError, TypeError) as exc:
-            raise ConfigError(f'mechanism: {exc}') from exc

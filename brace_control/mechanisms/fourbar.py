@@ -89,8 +89,8 @@ from typing import Any
 
 import numpy as np
 
-from ..config import ConfigError
-from .base import UnreachablePose, as_vector, check_limits
+from .base import (MechanismBase, UnreachablePose, as_actuator_names, as_vector, check_limits, check_section,
+                   config_errors, section_kwargs)
 from .loader import register
 
 __all__ = [
@@ -169,7 +169,7 @@ class Kinetostatics:
 
 
 @register('hoeken_fourbar')
-class HoekenFourBar:
+class HoekenFourBar(MechanismBase):
     """Hoeken's four-bar (one motor on the crank), pose = the coupler point ``P``.
 
     :param ground: ``L1`` (m), ``O2 O4``.
@@ -239,10 +239,7 @@ class HoekenFourBar:
         if not (math.isfinite(tol) and tol > 0.0):
             raise ValueError(f'curve_tolerance: expected a length > 0 m, got {curve_tolerance!r}')
         self.curve_tolerance = tol
-        names = (actuator_names,) if isinstance(actuator_names, str) else tuple(actuator_names)
-        if len(names) != 1 or not isinstance(names[0], str) or not names[0]:
-            raise ValueError(f'actuator_names: expected one non-empty name, got {actuator_names!r}')
-        self.actuator_names: tuple[str, ...] = names
+        self.actuator_names: tuple[str, ...] = as_actuator_names(actuator_names, 1)
         # ---- mass properties
         m = as_vector(masses, 3, 'masses (m2, m3, m4)')
         cg = as_vector(cg_fractions, 3, 'cg_fractions')
@@ -280,15 +277,12 @@ class HoekenFourBar:
             self.inverse(self._home)
 
     # ------------------------------------------------------------------ protocol basics
+    # home_pose (x, y of P, m, on the coupler curve): MechanismBase; actuator_limits is
+    # its own (``_lo``, ``_hi`` are floats here)
     @property
     def actuator_limits(self) -> tuple[np.ndarray, np.ndarray]:
         """Crank angle range ``(lo, hi)`` (rad), arrays of shape (1,)."""
         return np.array([self._lo]), np.array([self._hi])
-
-    @property
-    def home_pose(self) -> np.ndarray:
-        """Rest pose ``(x, y)`` of ``P`` (m), on the coupler curve."""
-        return self._home.copy()
 
     @property
     def crank_inertia(self) -> float:
@@ -700,12 +694,7 @@ class HoekenFourBar:
 
         :raises ValueError: malformed ``pose``.
         """
-        as_vector(pose, 2, 'pose')
-        try:
-            self.inverse(pose)
-        except UnreachablePose:
-            return False
-        return True
+        return self._in_workspace(pose, singularity=False)
 
     # ------------------------------------------------------------------ configuration
     @classmethod
@@ -719,25 +708,13 @@ class HoekenFourBar:
 
         :raises ConfigError: a missing or malformed value, naming the parameter.
         """
-        if not isinstance(section, Mapping):
-            raise ConfigError(f'mechanism: expected a mapping, got {type(section).__name__}')
-        kind = section.get('type', 'hoeken_fourbar')
-        if kind != 'hoeken_fourbar':
-            raise ConfigError(f'mechanism.type is {kind!r}, HoekenFourBar needs "hoeken_fourbar"')
-        for key in ('ground', 'crank', 'coupler', 'rocker'):
-            if key not in section:
-                raise ConfigError(f'parameter mechanism.{key} is missing')
-        kwargs: dict[str, Any] = {}
-        for key in ('coupler_extension', 'branch', 'crank_range', 'curve_tolerance', 'home_pose',
-                    'actuator_names', 'masses', 'cg_fractions', 'inertias', 'bar_width',
-                    'flywheel_mass', 'flywheel_inertia', 'gravity'):
-            if section.get(key) is not None:
-                kwargs[key] = section[key]
-        try:
+        check_section(section, 'hoeken_fourbar', 'HoekenFourBar', ('ground', 'crank', 'coupler', 'rocker'))
+        kwargs = section_kwargs(section, given=('coupler_extension', 'branch', 'crank_range', 'curve_tolerance',
+                                                'home_pose', 'actuator_names', 'masses', 'cg_fractions', 'inertias',
+                                                'bar_width', 'flywheel_mass', 'flywheel_inertia', 'gravity'))
+        with config_errors():
             return cls(float(section['ground']), float(section['crank']), float(section['coupler']),
                        float(section['rocker']), **kwargs)
-        except (ValueError, TypeError) as exc:
-            raise ConfigError(f'mechanism: {exc}') from exc
 
 
 # ====================================================================== patient, springs, exercise

@@ -82,46 +82,19 @@ from typing import Any
 
 import numpy as np
 
-from ..config import ConfigError, points
-from .base import SingularPose, UnreachablePose, as_vector, check_limits, rot2
+from .base import (MechanismBase, SingularPose, UnreachablePose, as_actuator_names, as_condition_max,
+                   as_points, as_range, as_vector, check_limits, check_section, condition_number,
+                   config_errors, section_kwargs, section_points)
 from .loader import register
-from .planar import cross2, trig_poly_coefficients, trig_poly_real_roots, wrap_angle
+from .planar import RprLegs, trig_poly_coefficients, trig_poly_real_roots, wrap_angle
 
 __all__ = ['Rpr3']
 
 _TWO_PI = 2.0 * math.pi
 
 
-def _anchor_array(value: Any, name: str) -> np.ndarray:
-    try:
-        arr = np.array(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f'{name}: expected three (x, y) points in m, got {value!r}') from exc
-    if arr.shape == (6,):
-        arr = arr.reshape(3, 2)
-    if arr.shape != (3, 2):
-        raise ValueError(f'{name}: expected three (x, y) points (shape (3, 2)), got shape {arr.shape}')
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f'{name}: contains a non-finite value: {arr.tolist()}')
-    return arr
-
-
-def _stroke_array(value: Any, name: str) -> np.ndarray:
-    try:
-        arr = np.array(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f'{name}: expected a length in m or three of them, got {value!r}') from exc
-    if arr.ndim == 0:
-        arr = np.full(3, float(arr))
-    if arr.shape != (3,):
-        raise ValueError(f'{name}: expected a scalar or 3 values, got shape {arr.shape}')
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f'{name}: contains a non-finite value: {arr.tolist()}')
-    return arr
-
-
 @register('rpr3')
-class Rpr3:
+class Rpr3(RprLegs, MechanismBase):
     """Planar 3-RPR mechanism (general anchors); the lumbar brace is one instance.
 
     :param base_anchors: ``A_1..A_3`` in the base frame, shape (3, 2) or flat (6,), m.
@@ -147,37 +120,13 @@ class Rpr3:
                  actuator_names: Sequence[str] = ('a1', 'a2', 'a3'),
                  home_pose: Sequence[float] | None = None,
                  singularity_condition_max: float = 1e4) -> None:
-        self.base_anchors = _anchor_array(base_anchors, 'base_anchors')
-        self.platform_anchors = _anchor_array(platform_anchors, 'platform_anchors')
-        if isinstance(stroke, (str, bytes)) or len(stroke) != 2:
-            raise ValueError(f'stroke: expected (lo, hi) in m, got {stroke!r}')
-        lo = _stroke_array(stroke[0], 'stroke (lo)')
-        hi = _stroke_array(stroke[1], 'stroke (hi)')
-        if np.any(lo < 0.0) or np.any(hi <= lo):
-            raise ValueError(f'stroke: need 0 <= lo < hi for every actuator, got lo={lo.tolist()} m, '
-                             f'hi={hi.tolist()} m')
-        self._lo, self._hi = lo, hi
-        names = tuple(actuator_names) if not isinstance(actuator_names, str) else (actuator_names,)
-        if len(names) != 3 or not all(isinstance(n, str) and n for n in names) or len(set(names)) != 3:
-            raise ValueError(f'actuator_names: expected three distinct non-empty names, got {actuator_names!r}')
-        self.actuator_names: tuple[str, ...] = names
-        try:
-            cmax = float(singularity_condition_max)
-        except (TypeError, ValueError):
-            cmax = math.nan
-        if not (math.isfinite(cmax) and cmax > 1.0):
-            raise ValueError('singularity_condition_max: expected a finite number > 1, '
-                             f'got {singularity_condition_max!r}')
-        self.singularity_condition_max = cmax
-        a, b = self.base_anchors, self.platform_anchors
-        for i in range(3):
-            for j in range(i + 1, 3):
-                if np.allclose(a[i], a[j], atol=1e-12) and np.allclose(b[i], b[j], atol=1e-12):
-                    raise ValueError(f'legs {names[i]} and {names[j]} are the same leg '
-                                     f'(same base and platform anchors): the mechanism is not 3-DOF')
-        #: platform size (m): weighs the angle against position in :meth:`forward_nearest`
-        self._platform_size = max(float(np.max(np.linalg.norm(b - b.mean(axis=0), axis=1))), 1e-3)
-        self._length_scale = max(float(np.max(np.ptp(a, axis=0))), float(np.max(np.ptp(b, axis=0))), 1e-3)
+        self.base_anchors = as_points(base_anchors, 3, 'base_anchors')
+        self.platform_anchors = as_points(platform_anchors, 3, 'platform_anchors')
+        self._lo, self._hi = as_range(stroke, 3, 'stroke', unit='m', lo_min=0.0)
+        self.actuator_names: tuple[str, ...] = as_actuator_names(actuator_names, 3)
+        self.singularity_condition_max = as_condition_max(singularity_condition_max)
+        # also sets _platform_size (m, weighs the angle against position in forward_nearest)
+        self._check_legs(': the mechanism is not 3-DOF')
         self._prepare_forward()
         if home_pose is None:
             self._home = self._default_home()
@@ -187,16 +136,7 @@ class Rpr3:
             self.inverse(self._home)     # raises UnreachablePose (a ValueError) when outside stroke
 
     # ------------------------------------------------------------------ properties
-    @property
-    def actuator_limits(self) -> tuple[np.ndarray, np.ndarray]:
-        """Installed-length range ``(lo, hi)`` of each actuator, m, arrays of shape (3,)."""
-        return self._lo.copy(), self._hi.copy()
-
-    @property
-    def home_pose(self) -> np.ndarray:
-        """The rest pose ``(x, y, theta)`` (m, m, rad) from the YAML (within stroke)."""
-        return self._home.copy()
-
+    # actuator_limits (installed lengths, m) and home_pose (x, y, theta): MechanismBase
     @property
     def architecture(self) -> str:
         """``'general'`` (sextic), ``'aligned'`` (the brace's closed form) or ``'mirror'`` (other ``D = 0``)."""
@@ -231,11 +171,7 @@ class Rpr3:
         return poses[int(np.argmin(key))].copy()
 
     # ------------------------------------------------------------------ inverse kinematics
-    def _legs(self, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Leg vectors ``B_i - A_i`` (3, 2) and ``rho_i = R b_i`` (3, 2) of a validated pose."""
-        rho = self.platform_anchors @ rot2(pose[2]).T
-        return pose[:2] + rho - self.base_anchors, rho
-
+    # _legs (leg vectors B_i - A_i and rho_i = R b_i): RprLegs
     def inverse(self, pose: Sequence[float]) -> np.ndarray:
         """Actuator lengths ``l_1..l_3`` (m) for ``pose = (x, y, theta)`` (paper eq. 3 for the brace).
 
@@ -313,22 +249,11 @@ class Rpr3:
 
         :raises UnreachablePose: a leg of zero length (its direction is undefined).
         """
-        p = as_vector(pose, 3, 'pose')
-        d, rho = self._legs(p)
-        n = np.linalg.norm(d, axis=1)
-        if np.any(n <= 1e-12):
-            i = int(np.argmin(n))
-            raise UnreachablePose(f'actuator {self.actuator_names[i]} has zero length at pose {p.tolist()}: '
-                                  'its direction is undefined', actuator=self.actuator_names[i],
-                                  value=float(n[i]), limits=(float(self._lo[i]), float(self._hi[i])))
-        u = d / n[:, None]
-        return np.column_stack([u, cross2(rho, u)])
+        return self._leg_jacobian(as_vector(pose, 3, 'pose'))
 
     def condition(self, pose: Sequence[float]) -> float:
         """``cond(J)`` (2-norm); ``inf`` at a singularity. J mixes units (column 3 in m)."""
-        jac = self.jacobian(pose)
-        sv = np.linalg.svd(jac, compute_uv=False)
-        return float(sv[0] / sv[-1]) if sv[-1] > 0.0 else math.inf
+        return condition_number(self.jacobian(pose))
 
     def check_singularity(self, pose: Sequence[float]) -> None:
         """Raise :class:`~.base.SingularPose` when ``cond(J) > singularity_condition_max``.
@@ -337,12 +262,7 @@ class Rpr3:
         meet in the homothety centre of the (parallel) rings, so a small rotation about it
         is not resisted by the legs.
         """
-        c = self.condition(pose)
-        if not c <= self.singularity_condition_max:
-            p = np.asarray(pose, dtype=float)
-            raise SingularPose(
-                f'pose (x={p[0]:.4f} m, y={p[1]:.4f} m, theta={math.degrees(p[2]):.3f} deg) is at or near '
-                f'a singularity: cond(J) = {c:.3g} > {self.singularity_condition_max:.3g}')
+        self._check_singularity(pose)
 
     def wrench(self, pose: Sequence[float], forces: Sequence[float]) -> np.ndarray:
         """Wrench on the platform ``(Fx N, Fy N, M N·m about P, counter-clockwise) = J^T f``.
@@ -364,12 +284,7 @@ class Rpr3:
         :raises ValueError: non-finite or wrong-shape ``pose`` (malformed input is an
             error, never a quiet ``False``).
         """
-        p = as_vector(pose, 3, 'pose')
-        try:
-            self.inverse(p)
-            return self.condition(p) <= self.singularity_condition_max
-        except UnreachablePose:
-            return False
+        return self._in_workspace(pose)
 
     # ------------------------------------------------------------------ forward kinematics
     def _prepare_forward(self) -> None:
@@ -640,27 +555,10 @@ class Rpr3:
 
         :raises ConfigError: a missing or malformed value, naming the parameter.
         """
-        if not isinstance(section, Mapping):
-            raise ConfigError(f'mechanism: expected a mapping, got {type(section).__name__}')
-        kind = section.get('type', 'rpr3')
-        if kind != 'rpr3':
-            raise ConfigError(f'mechanism.type is {kind!r}, Rpr3 needs "rpr3"')
-        for key in ('base_anchors', 'platform_anchors', 'stroke_min', 'stroke_max'):
-            if key not in section:
-                raise ConfigError(f'parameter mechanism.{key} is missing')
-        base = points(section['base_anchors'], 'mechanism.base_anchors')
-        plat = points(section['platform_anchors'], 'mechanism.platform_anchors')
-        for name, arr in (('base_anchors', base), ('platform_anchors', plat)):
-            if arr.shape != (3, 2):
-                raise ConfigError(f'mechanism.{name}: a 3-RPR needs 3 points (6 numbers), got {arr.shape[0]}')
-        kwargs: dict[str, Any] = {}
-        if 'actuator_names' in section:
-            kwargs['actuator_names'] = section['actuator_names']
-        if section.get('home_pose') is not None:
-            kwargs['home_pose'] = section['home_pose']
-        if 'singularity_condition_max' in section:
-            kwargs['singularity_condition_max'] = section['singularity_condition_max']
-        try:
+        check_section(section, 'rpr3', 'Rpr3', ('base_anchors', 'platform_anchors', 'stroke_min', 'stroke_max'))
+        base = section_points(section, 'base_anchors', 3, '3-RPR')
+        plat = section_points(section, 'platform_anchors', 3, '3-RPR')
+        kwargs = section_kwargs(section, present=('actuator_names', 'singularity_condition_max'),
+                                given=('home_pose',))
+        with config_errors():
             return cls(base, plat, (section['stroke_min'], section['stroke_max']), **kwargs)
-        except (ValueError, TypeError) as exc:
-            raise ConfigError(f'mechanism: {exc}') from exc

@@ -56,10 +56,12 @@ from typing import Any
 
 import numpy as np
 
-from ..config import ConfigError, points
-from .base import SingularPose, UnreachablePose, as_vector, check_limits, rot2
+from ..config import ConfigError
+from .base import (MechanismBase, SingularPose, UnreachablePose, as_actuator_names, as_condition_max,
+                   as_points, as_positive, as_range, as_vector, check_limits, check_section, condition_number,
+                   config_errors, section_kwargs, section_points)
 from .loader import register
-from .planar import cross2, wrap_angle
+from .planar import RprLegs, cross2, wrap_angle
 from .rpr3 import Rpr3
 
 __all__ = ['Rpr4', 'InconsistentLengths', 'InfeasibleWrench', 'Distribution', 'ACTUATION_MODES']
@@ -104,49 +106,10 @@ class Distribution:
     null: np.ndarray = field(repr=False)
 
 
-def _anchors4(value: Any, name: str) -> np.ndarray:
-    try:
-        arr = np.array(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f'{name}: expected four (x, y) points in m, got {value!r}') from exc
-    if arr.shape == (8,):
-        arr = arr.reshape(4, 2)
-    if arr.shape != (4, 2):
-        raise ValueError(f'{name}: expected four (x, y) points (shape (4, 2)), got shape {arr.shape}')
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f'{name}: contains a non-finite value: {arr.tolist()}')
-    return arr
-
-
-def _four(value: Any, name: str) -> np.ndarray:
-    try:
-        arr = np.array(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f'{name}: expected a length in m or four of them, got {value!r}') from exc
-    if arr.ndim == 0:
-        arr = np.full(4, float(arr))
-    if arr.shape != (4,):
-        raise ValueError(f'{name}: expected a scalar or 4 values, got shape {arr.shape}')
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f'{name}: contains a non-finite value: {arr.tolist()}')
-    return arr
-
-
-def _positive(value: Any, name: str, *, allow_inf: bool = False, allow_zero: bool = False) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        v = math.nan
-    ok = (v >= 0.0 if allow_zero else v > 0.0) and (math.isfinite(v) or (allow_inf and v == math.inf))
-    if not ok:
-        raise ValueError(f'{name}: expected a {"non-negative" if allow_zero else "positive"} number, got {value!r}')
-    return v
-
-
 def report_anchors(radius: float, delta: Sequence[float]) -> np.ndarray:
     """The report's platform joints ``b_n = r (cos delta_n, sin delta_n)`` (4, 2), m."""
     d = as_vector(delta, 4, 'anchor_angles')
-    r = _positive(radius, 'platform_radius')
+    r = as_positive(radius, 'platform_radius', unit='m')
     return r * np.column_stack([np.cos(d), np.sin(d)])
 
 
@@ -157,7 +120,7 @@ def _null_vectors(jt: np.ndarray) -> np.ndarray:
 
 
 @register('rpr4')
-class Rpr4:
+class Rpr4(RprLegs, MechanismBase):
     """Planar 4-RPR (neck brace, cable or rod driven, one degree of redundancy).
 
     :param base_anchors: ``A_1..A_4`` (4, 2) or flat (8,), m.
@@ -178,6 +141,7 @@ class Rpr4:
 
     dof: int = 3
     n_actuators: int = 4
+    _angle_name = 'psi'
 
     def __init__(self, base_anchors: Sequence[Sequence[float]] | np.ndarray,
                  platform_anchors: Sequence[Sequence[float]] | np.ndarray,
@@ -188,46 +152,25 @@ class Rpr4:
                  actuator_names: Sequence[str] = ('c1', 'c2', 'c3', 'c4'),
                  home_pose: Sequence[float] | None = None,
                  singularity_condition_max: float = 1e4) -> None:
-        self.base_anchors = _anchors4(base_anchors, 'base_anchors')
-        self.platform_anchors = _anchors4(platform_anchors, 'platform_anchors')
-        if isinstance(stroke, (str, bytes)) or len(stroke) != 2:
-            raise ValueError(f'stroke: expected (lo, hi) in m, got {stroke!r}')
-        lo, hi = _four(stroke[0], 'stroke (lo)'), _four(stroke[1], 'stroke (hi)')
-        if np.any(lo < 0.0) or np.any(hi <= lo):
-            raise ValueError(f'stroke: need 0 <= lo < hi for every actuator, got lo={lo.tolist()} m, '
-                             f'hi={hi.tolist()} m')
-        self._lo, self._hi = lo, hi
+        self.base_anchors = as_points(base_anchors, 4, 'base_anchors')
+        self.platform_anchors = as_points(platform_anchors, 4, 'platform_anchors')
+        self._lo, self._hi = as_range(stroke, 4, 'stroke', unit='m', lo_min=0.0)
         if actuation not in ACTUATION_MODES:
             raise ValueError(f'actuation: expected "cable" or "rod", got {actuation!r}')
         self.actuation = actuation
-        self.tension_min = _positive(tension_min, 'tension_min', allow_zero=True)
-        self.tension_max = _positive(tension_max, 'tension_max', allow_inf=True)
+        self.tension_min = as_positive(tension_min, 'tension_min', unit='N', allow_zero=True)
+        self.tension_max = as_positive(tension_max, 'tension_max', unit='N', allow_inf=True)
         if not self.tension_min < self.tension_max:
             raise ValueError(f'tension_min {self.tension_min} N must be < tension_max {self.tension_max} N')
-        self.force_max = _positive(force_max, 'force_max', allow_inf=True)
+        self.force_max = as_positive(force_max, 'force_max', unit='N', allow_inf=True)
         if distribution not in ('centre', 'min_norm'):
             raise ValueError(f'distribution: expected "centre" or "min_norm", got {distribution!r}')
         self.distribution = distribution
-        self.residual_max = _positive(residual_max, 'residual_max')
-        names = tuple(actuator_names) if not isinstance(actuator_names, str) else (actuator_names,)
-        if len(names) != 4 or not all(isinstance(n, str) and n for n in names) or len(set(names)) != 4:
-            raise ValueError(f'actuator_names: expected four distinct non-empty names, got {actuator_names!r}')
-        self.actuator_names: tuple[str, ...] = names
-        try:
-            cmax = float(singularity_condition_max)
-        except (TypeError, ValueError):
-            cmax = math.nan
-        if not (math.isfinite(cmax) and cmax > 1.0):
-            raise ValueError('singularity_condition_max: expected a finite number > 1, '
-                             f'got {singularity_condition_max!r}')
-        self.singularity_condition_max = cmax
+        self.residual_max = as_positive(residual_max, 'residual_max', unit='m')
+        self.actuator_names: tuple[str, ...] = as_actuator_names(actuator_names, 4)
+        self.singularity_condition_max = as_condition_max(singularity_condition_max)
+        self._check_legs()
         a, b = self.base_anchors, self.platform_anchors
-        for i in range(4):
-            for j in range(i + 1, 4):
-                if np.allclose(a[i], a[j], atol=1e-12) and np.allclose(b[i], b[j], atol=1e-12):
-                    raise ValueError(f'legs {names[i]} and {names[j]} are the same leg')
-        self._platform_size = max(float(np.max(np.linalg.norm(b - b.mean(axis=0), axis=1))), 1e-3)
-        self._length_scale = max(float(np.max(np.ptp(a, axis=0))), float(np.max(np.ptp(b, axis=0))), 1e-3)
         # the four 3-leg sub-mechanisms whose exact forward solutions seed the least squares
         self._subs: list[Rpr3 | None] = []
         for sub in _SUBSETS:
@@ -243,25 +186,13 @@ class Rpr4:
         self.inverse(self._home)
 
     # ------------------------------------------------------------------ properties
-    @property
-    def actuator_limits(self) -> tuple[np.ndarray, np.ndarray]:
-        """Length range ``(lo, hi)`` of each leg/cable, m, arrays of shape (4,)."""
-        return self._lo.copy(), self._hi.copy()
-
-    @property
-    def home_pose(self) -> np.ndarray:
-        """The rest pose ``(x, y, psi)`` (m, m, rad) from the YAML."""
-        return self._home.copy()
-
+    # actuator_limits (leg/cable lengths, m) and home_pose (x, y, psi): MechanismBase
     def __repr__(self) -> str:
         return (f'Rpr4(base_anchors={self.base_anchors.tolist()}, platform_anchors={self.platform_anchors.tolist()}, '
                 f'stroke=({self._lo.tolist()}, {self._hi.tolist()}), actuation={self.actuation!r})')
 
     # ------------------------------------------------------------------ inverse kinematics
-    def _legs(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        rho = self.platform_anchors @ rot2(p[2]).T
-        return p[:2] + rho - self.base_anchors, rho
-
+    # _legs (leg vectors B_n - A_n and rho_n = R b_n): RprLegs
     def inverse(self, pose: Sequence[float]) -> np.ndarray:
         """Leg lengths ``d_1..d_4`` (m) for ``pose = (x, y, psi)`` (eq. 6).
 
@@ -305,30 +236,15 @@ class Rpr4:
 
         :raises UnreachablePose: a leg of zero length (direction undefined).
         """
-        p = as_vector(pose, 3, 'pose')
-        d, rho = self._legs(p)
-        n = np.linalg.norm(d, axis=1)
-        if np.any(n <= 1e-12):
-            i = int(np.argmin(n))
-            raise UnreachablePose(f'actuator {self.actuator_names[i]} has zero length at pose {p.tolist()}: '
-                                  'its direction is undefined', actuator=self.actuator_names[i],
-                                  value=float(n[i]), limits=(float(self._lo[i]), float(self._hi[i])))
-        u = d / n[:, None]
-        return np.column_stack([u, cross2(rho, u)])
+        return self._leg_jacobian(as_vector(pose, 3, 'pose'))
 
     def condition(self, pose: Sequence[float]) -> float:
         """``cond(J)`` (ratio of the largest to the third singular value); ``inf`` when rank < 3."""
-        sv = np.linalg.svd(self.jacobian(pose), compute_uv=False)
-        return float(sv[0] / sv[-1]) if sv[-1] > 0.0 else math.inf
+        return condition_number(self.jacobian(pose))
 
     def check_singularity(self, pose: Sequence[float]) -> None:
         """Raise :class:`~.base.SingularPose` when ``cond(J) > singularity_condition_max``."""
-        c = self.condition(pose)
-        if not c <= self.singularity_condition_max:
-            p = np.asarray(pose, dtype=float)
-            raise SingularPose(
-                f'pose (x={p[0]:.4f} m, y={p[1]:.4f} m, psi={math.degrees(p[2]):.3f} deg) is at or near '
-                f'a singularity: cond(J) = {c:.3g} > {self.singularity_condition_max:.3g}')
+        self._check_singularity(pose)
 
     def wrench(self, pose: Sequence[float], forces: Sequence[float]) -> np.ndarray:
         """Wrench on the platform ``(Fx N, Fy N, M N·m about P, ccw) = J^T f``.
@@ -345,14 +261,8 @@ class Rpr4:
 
         :raises ValueError: malformed ``pose``.
         """
-        p = as_vector(pose, 3, 'pose')
-        try:
-            self.inverse(p)
-            if not self.condition(p) <= self.singularity_condition_max:
-                return False
-        except UnreachablePose:
-            return False
-        return self.actuation != 'cable' or self.distribute(p, (0.0, 0.0, 0.0)).feasible
+        return self._in_workspace(pose) and (self.actuation != 'cable'
+                                             or self.distribute(pose, (0.0, 0.0, 0.0)).feasible)
 
     # ------------------------------------------------------------------ redundancy resolution
     def _bounds(self, mode: str) -> tuple[float, float]:
@@ -621,36 +531,17 @@ class Rpr4:
 
         :raises ConfigError: a missing or malformed value, naming the parameter.
         """
-        if not isinstance(section, Mapping):
-            raise ConfigError(f'mechanism: expected a mapping, got {type(section).__name__}')
-        kind = section.get('type', 'rpr4')
-        if kind != 'rpr4':
-            raise ConfigError(f'mechanism.type is {kind!r}, Rpr4 needs "rpr4"')
-        for key in ('base_anchors', 'stroke_min', 'stroke_max'):
-            if key not in section:
-                raise ConfigError(f'parameter mechanism.{key} is missing')
-        base = points(section['base_anchors'], 'mechanism.base_anchors')
-        if base.shape != (4, 2):
-            raise ConfigError(f'mechanism.base_anchors: a 4-RPR needs 4 points (8 numbers), got {base.shape[0]}')
-        try:
+        check_section(section, 'rpr4', 'Rpr4', ('base_anchors', 'stroke_min', 'stroke_max'))
+        base = section_points(section, 'base_anchors', 4, '4-RPR')
+        with config_errors():
             if 'platform_anchors' in section:
-                plat = points(section['platform_anchors'], 'mechanism.platform_anchors')
-                if plat.shape != (4, 2):
-                    raise ConfigError('mechanism.platform_anchors: a 4-RPR needs 4 points (8 numbers), '
-                                      f'got {plat.shape[0]}')
+                plat = section_points(section, 'platform_anchors', 4, '4-RPR')
             elif 'platform_radius' in section and 'anchor_angles' in section:
                 plat = report_anchors(section['platform_radius'], section['anchor_angles'])
             else:
                 raise ConfigError('mechanism: give platform_radius and anchor_angles, or platform_anchors')
-            kwargs: dict[str, Any] = {}
-            for key in ('actuation', 'tension_min', 'tension_max', 'force_max', 'distribution',
-                        'residual_max', 'actuator_names', 'singularity_condition_max'):
-                if key in section:
-                    kwargs[key] = section[key]
-            if section.get('home_pose') is not None:
-                kwargs['home_pose'] = section['home_pose']
+            kwargs = section_kwargs(section, present=('actuation', 'tension_min', 'tension_max', 'force_max',
+                                                      'distribution', 'residual_max', 'actuator_names',
+                                                      'singularity_condition_max'),
+                                    given=('home_pose',))
             return cls(base, plat, (section['stroke_min'], section['stroke_max']), **kwargs)
-        except ConfigError:
-            raise
-        except (ValueError, TypeError) as exc:
-            raise ConfigError(f'mechanism: {exc}') from exc

@@ -53,8 +53,8 @@ from typing import Any
 
 import numpy as np
 
-from ..config import ConfigError
-from .base import SingularPose, UnreachablePose, as_vector, check_limits
+from .base import (MechanismBase, SingularPose, UnreachablePose, as_actuator_names, as_condition_max, as_range,
+                   as_vector, check_limits, check_section, condition_number, config_errors, section_kwargs)
 from .loader import register
 from .planar import wrap_angle
 
@@ -83,20 +83,6 @@ def angle_into_range(theta: float, lo: float, hi: float, *, tol: float = 1e-12) 
     return best
 
 
-def _pair(value: Any, name: str) -> np.ndarray:
-    try:
-        arr = np.array(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f'{name}: expected an angle in rad or two of them, got {value!r}') from exc
-    if arr.ndim == 0:
-        arr = np.full(2, float(arr))
-    if arr.shape != (2,):
-        raise ValueError(f'{name}: expected a scalar or 2 values, got shape {arr.shape}')
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f'{name}: contains a non-finite value: {arr.tolist()}')
-    return arr
-
-
 def _elbow(value: Any) -> int:
     if value not in ELBOW_SIGN:
         raise ValueError(f'elbow: expected "up" or "down", got {value!r}')
@@ -104,7 +90,7 @@ def _elbow(value: Any) -> int:
 
 
 @register('rr2')
-class Rr2:
+class Rr2(MechanismBase):
     """Planar serial 2R arm (neck-brace report, "Planar RR").
 
     :param link_lengths: ``(l1, l2)`` proximal and distal link lengths, m, both > 0.
@@ -122,6 +108,7 @@ class Rr2:
 
     dof: int = 2
     n_actuators: int = 2
+    _singular_hint = ' (arm stretched or folded)'
 
     def __init__(self, link_lengths: Sequence[float], joint_range: tuple[Any, Any] | Sequence[Any], *,
                  base: Sequence[float] = (0.0, 0.0), elbow: str = 'up',
@@ -133,27 +120,11 @@ class Rr2:
             raise ValueError(f'link_lengths: need l1 > 0 and l2 > 0 m, got {lengths.tolist()}')
         self.l1, self.l2 = float(lengths[0]), float(lengths[1])
         self.base = as_vector(base, 2, 'base')
-        if isinstance(joint_range, (str, bytes)) or len(joint_range) != 2:
-            raise ValueError(f'joint_range: expected (lo, hi) in rad, got {joint_range!r}')
-        lo, hi = _pair(joint_range[0], 'joint_range (lo)'), _pair(joint_range[1], 'joint_range (hi)')
-        if np.any(hi <= lo) or np.any(hi - lo > _TWO_PI + 1e-12):
-            raise ValueError(f'joint_range: need lo < hi <= lo + 2 pi for each joint, got lo={lo.tolist()} rad, '
-                             f'hi={hi.tolist()} rad')
-        self._lo, self._hi = lo, hi
+        self._lo, self._hi = as_range(joint_range, 2, 'joint_range', unit='rad', max_turn_tol=1e-12)
         self.elbow = str(elbow)
         self._sigma = _elbow(elbow)
-        names = tuple(actuator_names) if not isinstance(actuator_names, str) else (actuator_names,)
-        if len(names) != 2 or not all(isinstance(n, str) and n for n in names) or len(set(names)) != 2:
-            raise ValueError(f'actuator_names: expected two distinct non-empty names, got {actuator_names!r}')
-        self.actuator_names: tuple[str, ...] = names
-        try:
-            cmax = float(singularity_condition_max)
-        except (TypeError, ValueError):
-            cmax = math.nan
-        if not (math.isfinite(cmax) and cmax > 1.0):
-            raise ValueError('singularity_condition_max: expected a finite number > 1, '
-                             f'got {singularity_condition_max!r}')
-        self.singularity_condition_max = cmax
+        self.actuator_names: tuple[str, ...] = as_actuator_names(actuator_names, 2)
+        self.singularity_condition_max = as_condition_max(singularity_condition_max)
         if home_pose is None:
             self._home = self._default_home()
         else:
@@ -161,16 +132,7 @@ class Rr2:
             self.inverse(self._home)     # raises UnreachablePose (a ValueError) when unreachable
 
     # ------------------------------------------------------------------ properties
-    @property
-    def actuator_limits(self) -> tuple[np.ndarray, np.ndarray]:
-        """Joint ranges ``(lo, hi)`` (rad), arrays of shape (2,)."""
-        return self._lo.copy(), self._hi.copy()
-
-    @property
-    def home_pose(self) -> np.ndarray:
-        """The rest end point ``(x, y)`` (m) from the YAML."""
-        return self._home.copy()
-
+    # actuator_limits (joint angles, rad) and home_pose (end point x, y, m): MechanismBase
     @property
     def reach(self) -> tuple[float, float]:
         """``(r_min, r_max) = (|l1 - l2|, l1 + l2)``: the workspace annulus about ``base`` (m)."""
@@ -285,17 +247,11 @@ class Rr2:
 
     def condition(self, pose: Sequence[float], *, elbow: str | None = None) -> float:
         """``cond(J_s) = cond(J)`` (2-norm, dimensionless: both columns in m/rad); ``inf`` when singular."""
-        sv = np.linalg.svd(self._serial_at(pose, elbow), compute_uv=False)
-        return float(sv[0] / sv[-1]) if sv[-1] > 1e-15 * sv[0] else math.inf
+        return condition_number(self._serial_at(pose, elbow), rtol=1e-15)
 
     def check_singularity(self, pose: Sequence[float], *, elbow: str | None = None) -> None:
         """Raise :class:`~.base.SingularPose` when ``cond(J) > singularity_condition_max``."""
-        c = self.condition(pose, elbow=elbow)
-        if not c <= self.singularity_condition_max:
-            p = np.asarray(pose, dtype=float)
-            raise SingularPose(f'pose (x={p[0]:.4f} m, y={p[1]:.4f} m) is at or near a singularity '
-                               f'(arm stretched or folded): cond(J) = {c:.3g} > '
-                               f'{self.singularity_condition_max:.3g}')
+        self._check_singularity(pose, elbow=elbow)
 
     def wrench(self, pose: Sequence[float], forces: Sequence[float], *, elbow: str | None = None) -> np.ndarray:
         """Force ``(Fx, Fy)`` (N) at the end point from joint torques ``forces = (tau1, tau2)`` (N·m).
@@ -312,12 +268,7 @@ class Rr2:
 
         :raises ValueError: malformed ``pose`` (never a quiet ``False``).
         """
-        p = as_vector(pose, 2, 'pose')
-        try:
-            self.inverse(p, elbow=elbow)
-            return self.condition(p, elbow=elbow) <= self.singularity_condition_max
-        except UnreachablePose:
-            return False
+        return self._in_workspace(pose, elbow=elbow)
 
     # ------------------------------------------------------------------ configuration
     @classmethod
@@ -331,21 +282,8 @@ class Rr2:
 
         :raises ConfigError: a missing or malformed value, naming the parameter.
         """
-        if not isinstance(section, Mapping):
-            raise ConfigError(f'mechanism: expected a mapping, got {type(section).__name__}')
-        kind = section.get('type', 'rr2')
-        if kind != 'rr2':
-            raise ConfigError(f'mechanism.type is {kind!r}, Rr2 needs "rr2"')
-        for key in ('link_lengths', 'joint_min', 'joint_max'):
-            if key not in section:
-                raise ConfigError(f'parameter mechanism.{key} is missing')
-        kwargs: dict[str, Any] = {}
-        for key in ('base', 'elbow', 'actuator_names', 'singularity_condition_max'):
-            if key in section:
-                kwargs[key] = section[key]
-        if section.get('home_pose') is not None:
-            kwargs['home_pose'] = section['home_pose']
-        try:
+        check_section(section, 'rr2', 'Rr2', ('link_lengths', 'joint_min', 'joint_max'))
+        kwargs = section_kwargs(section, present=('base', 'elbow', 'actuator_names', 'singularity_condition_max'),
+                                given=('home_pose',))
+        with config_errors():
             return cls(section['link_lengths'], (section['joint_min'], section['joint_max']), **kwargs)
-        except (ValueError, TypeError) as exc:
-            raise ConfigError(f'mechanism: {exc}') from exc

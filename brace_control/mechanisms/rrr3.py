@@ -64,8 +64,9 @@ from typing import Any
 
 import numpy as np
 
-from ..config import ConfigError, points
-from .base import SingularPose, UnreachablePose, as_vector, check_limits, rot2
+from .base import (MechanismBase, SingularPose, UnreachablePose, as_actuator_names, as_condition_max,
+                   as_per_actuator, as_points, as_range, as_vector, check_limits, check_section,
+                   condition_number, config_errors, rot2, section_kwargs, section_points)
 from .loader import register
 from .planar import cross2, wrap_angle
 from .rpr3 import Rpr3
@@ -74,34 +75,6 @@ from .rr2 import angle_into_range
 __all__ = ['Rrr3']
 
 _WORKING_MODES = tuple((a, b, c) for a in (1, -1) for b in (1, -1) for c in (1, -1))
-
-
-def _points3(value: Any, name: str) -> np.ndarray:
-    try:
-        arr = np.array(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f'{name}: expected three (x, y) points in m, got {value!r}') from exc
-    if arr.shape == (6,):
-        arr = arr.reshape(3, 2)
-    if arr.shape != (3, 2):
-        raise ValueError(f'{name}: expected three (x, y) points (shape (3, 2)), got shape {arr.shape}')
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f'{name}: contains a non-finite value: {arr.tolist()}')
-    return arr
-
-
-def _three(value: Any, name: str, unit: str) -> np.ndarray:
-    try:
-        arr = np.array(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f'{name}: expected a value in {unit} or three of them, got {value!r}') from exc
-    if arr.ndim == 0:
-        arr = np.full(3, float(arr))
-    if arr.shape != (3,):
-        raise ValueError(f'{name}: expected a scalar or 3 values, got shape {arr.shape}')
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f'{name}: contains a non-finite value: {arr.tolist()}')
-    return arr
 
 
 def _mode(value: Any) -> tuple[int, int, int]:
@@ -116,7 +89,7 @@ def _mode(value: Any) -> tuple[int, int, int]:
 
 
 @register('rrr3')
-class Rrr3:
+class Rrr3(MechanismBase):
     """Planar 3-RRR parallel mechanism (general geometry).
 
     :param base_pivots: ``B_1..B_3`` (actuated joints), shape (3, 2) or flat (6,), m.
@@ -134,6 +107,7 @@ class Rrr3:
 
     dof: int = 3
     n_actuators: int = 3
+    _angle_name = 'phi'
 
     def __init__(self, base_pivots: Sequence[Sequence[float]] | np.ndarray,
                  proximal_lengths: Any, distal_lengths: Any,
@@ -143,34 +117,17 @@ class Rrr3:
                  actuator_names: Sequence[str] = ('m1', 'm2', 'm3'),
                  home_pose: Sequence[float] | None = None,
                  singularity_condition_max: float = 1e4) -> None:
-        self.base_pivots = _points3(base_pivots, 'base_pivots')
-        self.platform_anchors = _points3(platform_anchors, 'platform_anchors')
-        self.proximal_lengths = _three(proximal_lengths, 'proximal_lengths', 'm')
-        self.distal_lengths = _three(distal_lengths, 'distal_lengths', 'm')
+        self.base_pivots = as_points(base_pivots, 3, 'base_pivots')
+        self.platform_anchors = as_points(platform_anchors, 3, 'platform_anchors')
+        self.proximal_lengths = as_per_actuator(proximal_lengths, 3, 'proximal_lengths', unit='m')
+        self.distal_lengths = as_per_actuator(distal_lengths, 3, 'distal_lengths', unit='m')
         for name, arr in (('proximal_lengths', self.proximal_lengths), ('distal_lengths', self.distal_lengths)):
             if np.any(arr <= 0.0):
                 raise ValueError(f'{name}: every link length must be > 0 m, got {arr.tolist()}')
-        if isinstance(joint_range, (str, bytes)) or len(joint_range) != 2:
-            raise ValueError(f'joint_range: expected (lo, hi) in rad, got {joint_range!r}')
-        lo = _three(joint_range[0], 'joint_range (lo)', 'rad')
-        hi = _three(joint_range[1], 'joint_range (hi)', 'rad')
-        if np.any(hi <= lo) or np.any(hi - lo > 2.0 * math.pi + 1e-12):
-            raise ValueError(f'joint_range: need lo < hi <= lo + 2 pi for each motor, got lo={lo.tolist()} rad, '
-                             f'hi={hi.tolist()} rad')
-        self._lo, self._hi = lo, hi
+        self._lo, self._hi = as_range(joint_range, 3, 'joint_range', unit='rad', max_turn_tol=1e-12)
         self.working_mode = _mode(working_mode)
-        names = tuple(actuator_names) if not isinstance(actuator_names, str) else (actuator_names,)
-        if len(names) != 3 or not all(isinstance(n, str) and n for n in names) or len(set(names)) != 3:
-            raise ValueError(f'actuator_names: expected three distinct non-empty names, got {actuator_names!r}')
-        self.actuator_names: tuple[str, ...] = names
-        try:
-            cmax = float(singularity_condition_max)
-        except (TypeError, ValueError):
-            cmax = math.nan
-        if not (math.isfinite(cmax) and cmax > 1.0):
-            raise ValueError('singularity_condition_max: expected a finite number > 1, '
-                             f'got {singularity_condition_max!r}')
-        self.singularity_condition_max = cmax
+        self.actuator_names: tuple[str, ...] = as_actuator_names(actuator_names, 3)
+        self.singularity_condition_max = as_condition_max(singularity_condition_max)
         b = self.platform_anchors
         self._platform_size = max(float(np.max(np.linalg.norm(b - b.mean(axis=0), axis=1))), 1e-3)
         self._scale = float(max(np.max(self.proximal_lengths), np.max(self.distal_lengths), 1e-3))
@@ -182,16 +139,7 @@ class Rrr3:
         self.inverse(self._home)     # raises UnreachablePose (a ValueError) when unreachable
 
     # ------------------------------------------------------------------ properties
-    @property
-    def actuator_limits(self) -> tuple[np.ndarray, np.ndarray]:
-        """Motor-angle range ``(lo, hi)`` (rad), arrays of shape (3,)."""
-        return self._lo.copy(), self._hi.copy()
-
-    @property
-    def home_pose(self) -> np.ndarray:
-        """The rest pose ``(x, y, phi)`` (m, m, rad) from the YAML."""
-        return self._home.copy()
-
+    # actuator_limits (motor angles, rad) and home_pose (x, y, phi): MechanismBase
     @staticmethod
     def working_modes() -> tuple[tuple[int, int, int], ...]:
         """The eight working modes ``(sigma_1, sigma_2, sigma_3)``."""
@@ -337,17 +285,11 @@ class Rrr3:
             jac = self.jacobian(pose, working_mode=working_mode)
         except SingularPose:
             return math.inf
-        sv = np.linalg.svd(jac, compute_uv=False)
-        return float(sv[0] / sv[-1]) if sv[-1] > 0.0 else math.inf
+        return condition_number(jac)
 
     def check_singularity(self, pose: Sequence[float], *, working_mode: Sequence[int] | None = None) -> None:
         """Raise :class:`~.base.SingularPose` when ``cond(J) > singularity_condition_max``."""
-        c = self.condition(pose, working_mode=working_mode)
-        if not c <= self.singularity_condition_max:
-            p = np.asarray(pose, dtype=float)
-            raise SingularPose(
-                f'pose (x={p[0]:.4f} m, y={p[1]:.4f} m, phi={math.degrees(p[2]):.3f} deg) is at or near '
-                f'a singularity: cond(J) = {c:.3g} > {self.singularity_condition_max:.3g}')
+        self._check_singularity(pose, working_mode=working_mode)
 
     def wrench(self, pose: Sequence[float], forces: Sequence[float], *,
                working_mode: Sequence[int] | None = None) -> np.ndarray:
@@ -364,12 +306,7 @@ class Rrr3:
 
         :raises ValueError: malformed ``pose``.
         """
-        p = as_vector(pose, 3, 'pose')
-        try:
-            self.inverse(p, working_mode=working_mode)
-            return self.condition(p, working_mode=working_mode) <= self.singularity_condition_max
-        except UnreachablePose:
-            return False
+        return self._in_workspace(pose, working_mode=working_mode)
 
     # ------------------------------------------------------------------ configuration
     @classmethod
@@ -383,28 +320,12 @@ class Rrr3:
 
         :raises ConfigError: a missing or malformed value, naming the parameter.
         """
-        if not isinstance(section, Mapping):
-            raise ConfigError(f'mechanism: expected a mapping, got {type(section).__name__}')
-        kind = section.get('type', 'rrr3')
-        if kind != 'rrr3':
-            raise ConfigError(f'mechanism.type is {kind!r}, Rrr3 needs "rrr3"')
-        for key in ('base_pivots', 'platform_anchors', 'proximal_lengths', 'distal_lengths',
-                    'joint_min', 'joint_max'):
-            if key not in section:
-                raise ConfigError(f'parameter mechanism.{key} is missing')
-        base = points(section['base_pivots'], 'mechanism.base_pivots')
-        plat = points(section['platform_anchors'], 'mechanism.platform_anchors')
-        for name, arr in (('base_pivots', base), ('platform_anchors', plat)):
-            if arr.shape != (3, 2):
-                raise ConfigError(f'mechanism.{name}: a 3-RRR needs 3 points (6 numbers), got {arr.shape[0]}')
-        kwargs: dict[str, Any] = {}
-        for key in ('working_mode', 'actuator_names', 'singularity_condition_max'):
-            if key in section:
-                kwargs[key] = section[key]
-        if section.get('home_pose') is not None:
-            kwargs['home_pose'] = section['home_pose']
-        try:
+        check_section(section, 'rrr3', 'Rrr3', ('base_pivots', 'platform_anchors', 'proximal_lengths',
+                                                'distal_lengths', 'joint_min', 'joint_max'))
+        base = section_points(section, 'base_pivots', 3, '3-RRR')
+        plat = section_points(section, 'platform_anchors', 3, '3-RRR')
+        kwargs = section_kwargs(section, present=('working_mode', 'actuator_names', 'singularity_condition_max'),
+                                given=('home_pose',))
+        with config_errors():
             return cls(base, section['proximal_lengths'], section['distal_lengths'], plat,
                        (section['joint_min'], section['joint_max']), **kwargs)
-        except (ValueError, TypeError) as exc:
-            raise ConfigError(f'mechanism: {exc}') from exc

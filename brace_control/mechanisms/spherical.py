@@ -91,8 +91,9 @@ from typing import Any
 
 import numpy as np
 
-from ..config import ConfigError
-from .base import SingularPose, UnreachablePose, as_vector, check_limits
+from .base import (MechanismBase, SingularPose, UnreachablePose, as_actuator_names, as_condition_max,
+                   as_per_actuator, as_range, as_vector, check_limits, check_section, config_errors,
+                   section_kwargs)
 from .loader import register
 
 __all__ = [
@@ -261,21 +262,9 @@ def _parse_mode(mode: Any) -> tuple[str, np.ndarray]:
     return mode, np.array([1.0 if ch == '+' else -1.0 for ch in mode])
 
 
-def _angles3(value: Any, name: str) -> np.ndarray:
-    try:
-        arr = np.array(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f'{name}: expected three angles in rad, got {value!r}') from exc
-    if arr.ndim == 0:
-        arr = np.full(3, float(arr))
-    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-        raise ValueError(f'{name}: expected three finite angles in rad, got {value!r}')
-    return arr
-
-
 # ---------------------------------------------------------------------- the mechanism
 @register('spherical_3rrr')
-class Spherical3Rrr:
+class Spherical3Rrr(MechanismBase):
     """Spherical 3-RRR parallel mechanism (the shoulder joint); see the module docstring.
 
     :param gamma: half-angle of the base-axis cone (rad).
@@ -301,6 +290,7 @@ class Spherical3Rrr:
     pose_kind: str = 'spherical'
     #: a forward solution must close every leg to this (|w_i . v_i - cos alpha2_i|)
     verify_tol: float = 1e-9
+    _measure_name = 'k(J)'
 
     def __init__(self, gamma: float, beta: float, alpha1: Sequence[float], alpha2: Sequence[float],
                  delta: Sequence[float], *, working_mode: str | int = '+++',
@@ -317,31 +307,16 @@ class Spherical3Rrr:
         for name, val in (('gamma', self.gamma), ('beta', self.beta)):
             if not (0.0 < val < math.pi):
                 raise ValueError(f'{name}: expected a cone half-angle in (0, pi) rad, got {val!r}')
-        self.alpha1 = _angles3(alpha1, 'alpha1')
-        self.alpha2 = _angles3(alpha2, 'alpha2')
-        self.delta = _angles3(delta, 'delta')
+        self.alpha1 = as_per_actuator(alpha1, 3, 'alpha1', unit='rad')
+        self.alpha2 = as_per_actuator(alpha2, 3, 'alpha2', unit='rad')
+        self.delta = as_per_actuator(delta, 3, 'delta', unit='rad')
         for name, arr in (('alpha1', self.alpha1), ('alpha2', self.alpha2)):
             if np.any(arr <= 0.0) or np.any(arr >= math.pi):
                 raise ValueError(f'{name}: link angles must lie in (0, pi) rad, got {arr.tolist()}')
         self.working_mode, self._signs = _parse_mode(working_mode)
-        if isinstance(joint_limits, (str, bytes)) or len(joint_limits) != 2:
-            raise ValueError(f'joint_limits: expected (lo, hi) in rad, got {joint_limits!r}')
-        lo, hi = _angles3(joint_limits[0], 'joint_limits (lo)'), _angles3(joint_limits[1], 'joint_limits (hi)')
-        if np.any(hi <= lo) or np.any(hi - lo > _TWO_PI + 1e-9):
-            raise ValueError(f'joint_limits: need lo < hi <= lo + 2 pi, got lo={lo.tolist()}, hi={hi.tolist()}')
-        self._lo, self._hi = lo, hi
-        names = (actuator_names,) if isinstance(actuator_names, str) else tuple(actuator_names)
-        if len(names) != 3 or not all(isinstance(n, str) and n for n in names) or len(set(names)) != 3:
-            raise ValueError(f'actuator_names: expected three distinct non-empty names, got {actuator_names!r}')
-        self.actuator_names: tuple[str, ...] = names
-        try:
-            cmax = float(singularity_condition_max)
-        except (TypeError, ValueError):
-            cmax = math.nan
-        if not (math.isfinite(cmax) and cmax > 1.0):
-            raise ValueError('singularity_condition_max: expected a finite number > 1, '
-                             f'got {singularity_condition_max!r}')
-        self.singularity_condition_max = cmax
+        self._lo, self._hi = as_range(joint_limits, 3, 'joint_limits', unit='rad', max_turn_tol=1e-9)
+        self.actuator_names: tuple[str, ...] = as_actuator_names(actuator_names, 3)
+        self.singularity_condition_max = as_condition_max(singularity_condition_max)
         n_loads = len(load_forces) if isinstance(load_forces, (list, tuple, np.ndarray)) else -1
         self.load_forces = as_vector(load_forces, n_loads, 'load_forces')
         self.load_lever_arms = as_vector(load_lever_arms, n_loads, 'load_lever_arms')
@@ -355,16 +330,8 @@ class Spherical3Rrr:
         self.check_singularity(self._home)
 
     # ------------------------------------------------------------------ properties
-    @property
-    def actuator_limits(self) -> tuple[np.ndarray, np.ndarray]:
-        """Motor angle range ``(lo, hi)`` (rad), arrays of shape (3,)."""
-        return self._lo.copy(), self._hi.copy()
-
-    @property
-    def home_pose(self) -> np.ndarray:
-        """Rest pose ``(abduction, flexion_extension, rotation)`` (rad)."""
-        return self._home.copy()
-
+    # actuator_limits (motor angles, rad) and home_pose (abduction, flexion_extension,
+    # rotation; rad): MechanismBase
     @property
     def design(self) -> dict[str, Any]:
         """The 11 design parameters (rad)."""
@@ -560,25 +527,23 @@ class Spherical3Rrr:
             out.append('parallel')
         return out
 
+    def _singularity_measure(self, pose: Sequence[float], **branch: Any) -> float:
+        return self.dexterity(pose)
+
+    def _pose_text(self, pose: Sequence[float]) -> str:
+        p = np.degrees(as_vector(pose, 3, 'pose'))
+        return f'pose ({p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f}) deg'
+
     def check_singularity(self, pose: Sequence[float]) -> None:
         """Raise :class:`~.base.SingularPose` when ``k(J) > singularity_condition_max``."""
-        k = self.dexterity(pose)
-        if not k <= self.singularity_condition_max:
-            p = np.degrees(as_vector(pose, 3, 'pose'))
-            raise SingularPose(f'pose ({p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f}) deg is at or near a singularity: '
-                               f'k(J) = {k:.3g} > {self.singularity_condition_max:.3g}')
+        self._check_singularity(pose)
 
     def in_workspace(self, pose: Sequence[float]) -> bool:
         """Reachable in the working mode, within the joint limits, ``k(J) <= singularity_condition_max``.
 
         :raises ValueError: malformed pose (never a quiet ``False``).
         """
-        p = as_vector(pose, 3, 'pose')
-        try:
-            self.inverse(p)
-            return self.dexterity(p) <= self.singularity_condition_max
-        except UnreachablePose:
-            return False
+        return self._in_workspace(pose)
 
     # ------------------------------------------------------------------ statics
     def load_moment(self, pose: Sequence[float]) -> np.ndarray:
@@ -809,23 +774,11 @@ class Spherical3Rrr:
 
         :raises ConfigError: a missing or malformed value, naming the parameter.
         """
-        if not isinstance(section, Mapping):
-            raise ConfigError(f'mechanism: expected a mapping, got {type(section).__name__}')
-        kind = section.get('type', 'spherical_3rrr')
-        if kind != 'spherical_3rrr':
-            raise ConfigError(f'mechanism.type is {kind!r}, Spherical3Rrr needs "spherical_3rrr"')
-        for key in ('gamma', 'beta', 'alpha1', 'alpha2', 'delta'):
-            if key not in section:
-                raise ConfigError(f'parameter mechanism.{key} is missing')
-        kwargs: dict[str, Any] = {}
-        for key in ('working_mode', 'actuator_names', 'home_pose', 'singularity_condition_max',
-                    'load_forces', 'load_lever_arms'):
-            if section.get(key) is not None:
-                kwargs[key] = section[key]
+        check_section(section, 'spherical_3rrr', 'Spherical3Rrr', ('gamma', 'beta', 'alpha1', 'alpha2', 'delta'))
+        kwargs = section_kwargs(section, given=('working_mode', 'actuator_names', 'home_pose',
+                                                'singularity_condition_max', 'load_forces', 'load_lever_arms'))
         if 'joint_min' in section or 'joint_max' in section:
             kwargs['joint_limits'] = (section.get('joint_min', -math.pi), section.get('joint_max', math.pi))
-        try:
+        with config_errors():
             return cls(section['gamma'], section['beta'], section['alpha1'], section['alpha2'],
                        section['delta'], **kwargs)
-        except (ValueError, TypeError) as exc:
-            raise ConfigError(f'mechanism: {exc}') from exc

@@ -1,0 +1,40 @@
+"""Independent 3-RPR forward-kinematics oracle shared by test_rpr3.py and test_rrr3.py.
+
+Written out from the loop equations, not from the code under test: ``g(theta)`` is legs
+2 and 3 minus leg 1 solved for ``B1 - A1`` by Cramer's rule, leg 1 times ``det^2``; its
+sign changes over a dense ``theta`` grid, refined by brentq, are the assembly modes.
+(A 3-RRR with its motors fixed is a 3-RPR with the elbows as base anchors.)
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.optimize import brentq
+
+
+def fk_residual(base, plat, lengths, theta: np.ndarray) -> np.ndarray:
+    """g(theta): legs 2, 3 minus leg 1 solved for B1 - A1 by Cramer, leg 1 times det^2."""
+    a = np.asarray(base, float) - base[0]
+    b = np.asarray(plat, float) - plat[0]
+    l1, l2, l3 = lengths
+    c, s = np.cos(theta), np.sin(theta)
+    rows, rhs = [], []
+    for i, li in ((1, l2), (2, l3)):
+        rbx, rby = c * b[i, 0] - s * b[i, 1], s * b[i, 0] + c * b[i, 1]
+        rows.append((rbx - a[i, 0], rby - a[i, 1]))
+        rhs.append(0.5 * (li ** 2 - l1 ** 2 - a[i] @ a[i] - b[i] @ b[i] + 2 * (a[i, 0] * rbx + a[i, 1] * rby)))
+    (m2x, m2y), (m3x, m3y) = rows
+    det = m2x * m3y - m2y * m3x
+    px = rhs[0] * m3y - rhs[1] * m2y
+    py = m2x * rhs[1] - m3x * rhs[0]
+    return px ** 2 + py ** 2 - l1 ** 2 * det ** 2
+
+
+def fk_thetas_by_sampling(base, plat, lengths, n: int = 200_001) -> list[float]:
+    """The roots of :func:`fk_residual` on ``[-pi, pi]``: sign changes on ``n`` samples, brentq."""
+    th = np.linspace(-math.pi, math.pi, n)
+    g = fk_residual(base, plat, lengths, th)
+    idx = np.flatnonzero(np.sign(g[1:]) != np.sign(g[:-1]))
+    return [brentq(lambda t: fk_residual(base, plat, lengths, np.array([t]))[0], th[i], th[i + 1], xtol=1e-14)
+            for i in idx]
