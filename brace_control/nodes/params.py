@@ -81,12 +81,13 @@ SCHEMA: dict[str, Param] = {
     'can.sync_spin_us': Param(300, 'SYNC thread: busy-wait before each deadline (us)', (0, 5000), True),
     'can.sync_thread_priority': Param(0, 'SCHED_FIFO priority of the SYNC thread, 0 = normal '
                                       'scheduling (needs CAP_SYS_NICE)', (0, 99), True),
-    'can.gil_switch_interval_us': Param(500, "driver process: Python's GIL switch interval (us), "
+    'can.gil_switch_interval_us': Param(200, "driver process: Python's GIL switch interval (us), "
                                         "0 = keep Python's 5000 us", (0, 100000), True),
     # safety (SAFETY.md): read-only at run time
     'safety.command_timeout': Param(0.015, 'setpoint staleness -> hold (s)', (0.001, 5.0), True),
     'safety.following_error_window': Param(0.003, 'following error window 6065h (m or rad)', (1e-6, 1.0), True),
-    'safety.path_tolerance': Param(0.005, 'tracking error -> abort and hold (m or rad)', (1e-6, 1.0), True),
+    'safety.path_tolerance': Param(0.005, 'tracking error in actuator coordinates -> abort and hold (m or rad)', (1e-6, 1.0), True),
+    'safety.tracking_latency': Param(0.1, 'setpoint-to-measurement delay allowed by the tracking check (s)', (0.0, 5.0), True),
     'safety.step_margin': Param(0.0005, 'margin on |dq| per cycle (m or rad)', (0.0, 1.0), True),
     'safety.force_limit': Param(250.0, 'load-cell force / torque -> protective stop', (0.0, 1e5), True),
     'safety.saturation_fraction': Param(0.95, 'load-cell saturation threshold (of full scale)', (0.5, 1.0), True),

@@ -115,7 +115,8 @@ class TrajectoryNode(Node):
             fitts=FittsLaw(a=traj['fitts_a'], b=traj['fitts_b'], w=traj['fitts_w']),
             fitts_axes=(0, 1) if kind in ('planar', 'xy') else None,
             lookahead=PLAN_LOOKAHEAD_S,
-            path_tolerance=float(self.cfg['safety']['path_tolerance']))
+            path_tolerance=float(self.cfg['safety']['path_tolerance']),
+            tracking_latency=float(self.cfg['safety']['tracking_latency']))
         # The runner is shared by the timer (executor thread) and the planner (worker
         # thread): every runner call holds this lock; planning itself runs outside it.
         self._lock = threading.Lock()
@@ -246,8 +247,12 @@ class TrajectoryNode(Node):
             return
         now = time.monotonic()
         self._measured = (pose, now)
+        # the measurement's time on the runner's clock (stamps and the runner share one offset)
+        measured_at = (stamp_to_ns(msg.header.stamp) - self._clock_offset_ns) * 1e-9
+        if not msg.header.stamp.sec and not msg.header.stamp.nanosec:
+            measured_at = now                  # unstamped: as received
         with self._lock:
-            events = self.runner.check_tracking(pose, now=now)
+            events = self.runner.check_tracking(pose, now=now, measured_at=min(measured_at, now))
         self._report(events, {})
 
     # ------------------------------------------------------------------ setpoints

@@ -16,6 +16,7 @@ Not thread-safe: the node serialises calls (its lock); :meth:`plan` needs no loc
 from __future__ import annotations
 
 import enum
+from collections import deque
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -105,12 +106,19 @@ class TrajectoryRunner:
     :param fitts: Fitts' law for goals without a duration.
     :param fitts_axes: coordinates whose distance is Fitts' amplitude (default all).
     :param lookahead: s between planning a goal and its motion taking over.
-    :param path_tolerance: measured-vs-setpoint error that aborts the goal, or ``None``.
+    :param path_tolerance: tracking error that aborts the goal, or ``None``: in actuator
+        coordinates (m or rad, like the drives' following error), since a measured pose of
+        an ill-conditioned mechanism amplifies encoder resolution (the lumbar brace near
+        theta = 0: 10 um on a2 is mm of x).
+    :param tracking_latency: s; a measurement is compared with the setpoints of the last
+        ``tracking_latency`` before its time (the setpoint -> IK -> CAN -> drive -> encoder
+        -> forward-kinematics pipeline delay); the smallest error counts.
     """
 
     def __init__(self, mech: 'Mechanism', limits: Limits, *, profile: Profile | str,
                  fitts: FittsLaw, fitts_axes: tuple[int, ...] | None = None,
-                 lookahead: float = 0.0, path_tolerance: float | None = None) -> None:
+                 lookahead: float = 0.0, path_tolerance: float | None = None,
+                 tracking_latency: float = 0.1) -> None:
         self.mech = mech
         self.limits = limits
         self.profile = Profile(profile)
@@ -118,6 +126,9 @@ class TrajectoryRunner:
         self.fitts_axes = fitts_axes
         self.lookahead = float(lookahead)
         self.path_tolerance = path_tolerance
+        self.tracking_latency = float(tracking_latency)
+        # (time, actuator coordinates) of recent setpoints, for the tracking check
+        self._recent: deque[tuple[float, np.ndarray]] = deque(maxlen=4096)
         self._motion: _Motion | None = None
         self._pending: _Motion | None = None
         self._active_goal: str | None = None
@@ -281,17 +292,34 @@ class TrajectoryRunner:
         self._active_goal = None
         return [GoalEvent(goal, GoalState.ABORTED, f'{reason}; {how}')]
 
-    def check_tracking(self, measured: np.ndarray, *, now: float) -> list[GoalEvent]:
-        """Abort the active goal if ``measured`` is farther than ``path_tolerance`` from the
-        last setpoint on any coordinate (SAFETY.md 11)."""
-        if self.path_tolerance is None or self._active_goal is None or self._last_setpoint is None:
+    def check_tracking(self, measured: np.ndarray, *, now: float,
+                       measured_at: float | None = None) -> list[GoalEvent]:
+        """Abort the active goal if the brace is off its path (SAFETY.md 11).
+
+        The error is taken in actuator coordinates: ``|IK(measured) - IK(setpoint)|`` per
+        actuator, against every setpoint of the ``tracking_latency`` before
+        ``measured_at`` (the measurement's time on this runner's clock; default ``now``);
+        the smallest such error must stay within ``path_tolerance``.
+        """
+        if self.path_tolerance is None or self._active_goal is None or not self._recent:
             return []
-        err = np.abs(np.asarray(measured, float) - self._last_setpoint)
-        if not np.all(np.isfinite(err)):
+        measured = np.asarray(measured, float)
+        if not np.all(np.isfinite(measured)):
             return self.abort('measured pose is not finite', now=now)
-        if float(err.max()) > self.path_tolerance:
-            i = int(np.argmax(err))
-            return self.abort(f'tracking error {err[i]:.4f} on coordinate {i} exceeds the path '
+        t_meas = now if measured_at is None else float(measured_at)
+        window = [q for t, q in self._recent if t_meas - self.tracking_latency <= t <= t_meas + 1e-3]
+        if not window:
+            return []
+        try:
+            q_meas = self.mech.inverse(measured)
+        except ValueError as exc:            # UnreachablePose: off the stroke
+            return self.abort(f'measured pose is off the actuators\' range: {exc}', now=now)
+        err = np.abs(np.asarray(window) - q_meas).max(axis=1)
+        best = int(np.argmin(err))
+        if float(err[best]) > self.path_tolerance:
+            i = int(np.argmax(np.abs(window[best] - q_meas)))
+            name = self.mech.actuator_names[i]
+            return self.abort(f'tracking error {err[best]:.4f} on actuator {name} exceeds the path '
                               f'tolerance {self.path_tolerance:.4f}', now=now)
         return []
 
@@ -306,6 +334,13 @@ class TrajectoryRunner:
             return None, []
         p, v, a = m.trajectory.sample(now - m.t0)
         self._last_setpoint = p.copy()
+        if self.path_tolerance is not None:
+            try:
+                self._recent.append((now, self.mech.inverse(p)))
+            except ValueError:               # planned paths are checked; keep the history clean
+                pass
+            while self._recent and self._recent[0][0] < now - self.tracking_latency - 1.0:
+                self._recent.popleft()
         events: list[GoalEvent] = []
         if (m.goal_id is not None and m.goal_id == self._active_goal
                 and now - m.t0 >= m.trajectory.duration):
