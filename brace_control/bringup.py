@@ -1,0 +1,416 @@
+"""Bring-up: the four nodes of a device, in one process or each as its own process.
+
+::
+
+    brace-bringup config/lumbar_brace.yaml              # one process, simulated brace
+    brace-bringup lumbar_brace --processes              # one process per node (installed executables)
+    brace-bringup config/lumbar_brace.yaml --no-sim     # real bus (can.sim:=false)
+    ros2 run brace_control bringup <share>/config/lumbar_brace.yaml
+
+Nodes (ARCHITECTURE.md, data flow): ``trajectory_node`` -> ``ik_node`` ->
+``can_driver_node`` (with the simulated brace on the same virtual bus unless
+``--no-sim``) -> ``kinetics_node``. Every node reads the device file as its ROS parameter
+file (``--ros-args --params-file``), in both modes.
+
+*One process* (default): every node has its own executor thread (``--executor
+per-node``, the default) or all share one :class:`MultiThreadedExecutor` (``--executor
+multi``). Either way each node keeps its callbacks in its own mutually exclusive
+callback group (rclpy's default group per node; the driver's blocking services in a
+second group), so a node's callbacks never overlap each other (no locking inside the
+nodes) while the nodes run in parallel: the trajectory node's 200 Hz timer is never
+queued behind the kinetics node's forward kinematics or the driver's services.
+
+*Processes* (``--processes``): each node is started the way ``ros2 run`` does, from
+``<prefix>/lib/brace_control/<node>`` (prefix from the ament index), else the executable
+next to this Python, else ``python -c 'from brace_control.nodes.<node> import main'``.
+
+Shutdown (Ctrl-C, SIGTERM): the drives are disabled first (the driver's ``disable``
+``std_srvs/Trigger`` service, while every node still runs), then the nodes are stopped
+(processes: SIGINT, then SIGKILL after a timeout) and rclpy is shut down. Exit code 0
+after a clean shutdown, 1 when a node failed (a process died or a node could not start),
+2 for a configuration error.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import inspect
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from .config import ConfigError, load_device_config, resolve_device_file
+
+__all__ = ['NODE_NAMES', 'BringUp', 'ProcessBringUp', 'node_class', 'find_executable',
+           'disable_drives', 'main']
+
+#: the nodes of a device, in data-flow order
+NODE_NAMES = ('trajectory_node', 'ik_node', 'can_driver_node', 'kinetics_node')
+DRIVER = 'can_driver_node'
+
+
+def node_class(name: str) -> type:
+    """The ``rclpy.node.Node`` subclass defined in ``brace_control.nodes.<name>``."""
+    from rclpy.node import Node
+    module = importlib.import_module(f'brace_control.nodes.{name}')
+    classes = [obj for _, obj in inspect.getmembers(module, inspect.isclass)
+               if issubclass(obj, Node) and obj is not Node and obj.__module__ == module.__name__]
+    if len(classes) != 1:
+        raise ImportError(f'brace_control.nodes.{name} defines {len(classes)} Node classes, '
+                          'expected exactly one')
+    return classes[0]
+
+
+def ros_args(config: Path, *, sim: bool = True, extra: Sequence[str] = ()) -> list[str]:
+    """``--ros-args --params-file <config> [-p can.sim:=false] ...`` for every node."""
+    args = ['--ros-args', '--params-file', str(config)]
+    if not sim:
+        args += ['-p', 'can.sim:=false']
+    return args + list(extra)
+
+
+def _trigger_services(node: Any, suffix: str) -> list[str]:
+    return sorted(name for name, types in node.get_service_names_and_types()
+                  if name.rstrip('/').endswith(suffix) and 'std_srvs/srv/Trigger' in types)
+
+
+def call_trigger(node: Any, service: str, *, timeout: float = 5.0,
+                 executor: Any = None) -> tuple[bool, str]:
+    """Call a ``std_srvs/Trigger`` service from ``node``; ``(success, message)``.
+
+    If ``executor`` is given the node is already spun by it (another thread);
+    otherwise the call spins ``node`` itself.
+    """
+    import rclpy
+    from std_srvs.srv import Trigger
+    client = node.create_client(Trigger, service)
+    try:
+        if not client.wait_for_service(timeout_sec=timeout):
+            return False, f'{service} not available'
+        future = client.call_async(Trigger.Request())
+        if executor is None:
+            rclpy.spin_until_future_complete(node, future, timeout_sec=timeout)
+        else:
+            deadline = time.monotonic() + timeout
+            while not future.done() and time.monotonic() < deadline:
+                time.sleep(0.005)
+        if not future.done():
+            future.cancel()
+            return False, f'{service}: no answer within {timeout} s'
+        res = future.result()
+        return bool(res.success), str(res.message)
+    finally:
+        node.destroy_client(client)
+
+
+def disable_drives(node: Any, *, timeout: float = 5.0, executor: Any = None) -> tuple[bool, str]:
+    """Call every ``.../disable`` Trigger service in the graph (the CAN driver's)."""
+    deadline = time.monotonic() + min(timeout, 2.0)
+    services = _trigger_services(node, 'disable')
+    while not services and time.monotonic() < deadline:     # discovery may lag a little
+        time.sleep(0.05)
+        services = _trigger_services(node, 'disable')
+    if not services:
+        return False, 'no disable service in the graph'
+    results = [call_trigger(node, s, timeout=timeout, executor=executor) for s in services]
+    return all(ok for ok, _ in results), '; '.join(f'{s}: {m}' for s, (_, m) in zip(services, results))
+
+
+# --------------------------------------------------------------------- one process
+
+class BringUp:
+    """All nodes of a device in this process.
+
+    :param config: device YAML path or device name.
+    :param sim: start the simulated brace with the driver (``can.sim``).
+    :param nodes: which nodes (default all four, in data-flow order).
+    :param context: an rclpy ``Context`` (default: the global one, initialised by the caller).
+    :param extra_args: more ``--ros-args`` items for every node (``['-p', 'x:=1']``).
+    :param executor: ``'multi'``: one :class:`MultiThreadedExecutor` holds every node
+        (``num_threads``, default one per node + 1); each node's callbacks stay in their
+        own mutually exclusive group, the driver's blocking services in a separate one.
+        ``'per-node'`` (default): each node on its own executor in its own thread (a
+        ``SingleThreadedExecutor``; the driver a 2-thread ``MultiThreadedExecutor`` so its
+        services, which block up to ~1 s, never hold up the setpoint stream). Same
+        isolation between nodes, less executor overhead: the CAN driver's 500 Hz SYNC
+        thread (same interpreter, same GIL) keeps its period far better, see
+        bench/RESULTS.md "End to end".
+    """
+
+    def __init__(self, config: str | Path, *, sim: bool = True,
+                 nodes: Sequence[str] = NODE_NAMES, context: Any = None,
+                 extra_args: Sequence[str] = (), num_threads: int | None = None,
+                 executor: str = 'per-node') -> None:
+        from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
+        if executor not in ('multi', 'per-node'):
+            raise ValueError(f"executor must be 'multi' or 'per-node', got {executor!r}")
+        self.config_path = resolve_device_file(config)
+        self.config = load_device_config(self.config_path)
+        self.context = context
+        self.sim = sim
+        self.names = tuple(nodes)
+        self.nodes: dict[str, Any] = {}
+        self.mode = executor
+        self._executors: list[Any] = []
+        self._args = ros_args(self.config_path, sim=sim, extra=extra_args)
+        self._threads: list[threading.Thread] = []
+        self._helper = None
+        self._closed = False
+        shared = (MultiThreadedExecutor(num_threads=num_threads or len(self.names) + 1,
+                                        context=context) if executor == 'multi' else None)
+        if shared is not None:
+            self._executors.append(shared)
+        try:
+            import rclpy
+            for name in self.names:
+                cls = node_class(name)
+                self.nodes[name] = cls(context=context, cli_args=self._args)
+            self._helper = rclpy.create_node('brace_bringup', context=context)
+            for name, node in [*self.nodes.items(), ('helper', self._helper)]:
+                if shared is not None:
+                    shared.add_node(node)
+                    continue
+                ex = (MultiThreadedExecutor(num_threads=2, context=context) if name == DRIVER
+                      else SingleThreadedExecutor(context=context))
+                ex.add_node(node)
+                self._executors.append(ex)
+        except BaseException:
+            self.shutdown(disable=False)
+            raise
+
+    def node(self, name: str) -> Any:
+        return self.nodes[name]
+
+    @property
+    def helper(self) -> Any:
+        """A plain node of the bring-up (service clients, test probes), spun with the others."""
+        return self._helper
+
+    @property
+    def running(self) -> bool:
+        return bool(self._threads) and all(t.is_alive() for t in self._threads)
+
+    def start(self) -> 'BringUp':
+        """Spin the executor(s) in background threads."""
+        for i, ex in enumerate(self._executors):
+            t = threading.Thread(target=self._spin, args=(ex,), name=f'bringup-executor-{i}',
+                                 daemon=True)
+            t.start()
+            self._threads.append(t)
+        return self
+
+    @staticmethod
+    def _spin(executor: Any) -> None:
+        from rclpy.executors import ExternalShutdownException
+        try:
+            executor.spin()
+        except ExternalShutdownException:
+            pass
+
+    def call(self, service: str, *, timeout: float = 5.0) -> tuple[bool, str]:
+        """Call a Trigger service (``/can_driver_node/enable`` ...) while the nodes spin."""
+        return call_trigger(self._helper, service, timeout=timeout,
+                            executor=self._executors[0] if self._threads else None)
+
+    def disable_drives(self, timeout: float = 5.0) -> tuple[bool, str]:
+        """Disable the drives through the driver's service (nodes still running)."""
+        if DRIVER not in self.nodes or self._helper is None:
+            return True, 'no driver'
+        return disable_drives(self._helper, timeout=timeout,
+                              executor=self._executors[0] if self._threads else None)
+
+    def shutdown(self, *, disable: bool = True, timeout: float = 5.0) -> None:
+        """Drives disabled first, then the executor(s) and the nodes (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        if disable and self._threads:
+            ok, msg = self.disable_drives(timeout)
+            log = self._helper.get_logger() if self._helper else None
+            if log:
+                if ok:
+                    log.info(f'drives disabled: {msg}')
+                else:
+                    log.error(f'disabling the drives failed: {msg}')
+        for node in reversed(list(self.nodes.values())):
+            stop = getattr(node, 'shutdown', None)
+            if callable(stop):
+                try:
+                    stop()
+                except Exception as exc:  # noqa: BLE001 - keep shutting the others down
+                    node.get_logger().error(f'shutdown: {exc}')
+        for ex in self._executors:
+            ex.shutdown(timeout_sec=timeout)
+        for t in self._threads:
+            t.join(timeout)
+        for node in list(self.nodes.values()) + ([self._helper] if self._helper else []):
+            node.destroy_node()
+
+    def __enter__(self) -> 'BringUp':
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.shutdown()
+
+
+# --------------------------------------------------------------------- processes
+
+def find_executable(name: str) -> list[str]:
+    """The command that starts node ``name`` as ``ros2 run brace_control <name>`` would."""
+    try:
+        from ament_index_python.packages import PackageNotFoundError, get_package_prefix
+        try:
+            exe = Path(get_package_prefix('brace_control')) / 'lib' / 'brace_control' / name
+            if os.access(exe, os.X_OK):
+                return [str(exe)]
+        except (PackageNotFoundError, OSError):    # not in the index / no AMENT_PREFIX_PATH
+            pass
+    except ImportError:
+        pass
+    beside = Path(sys.executable).parent / name
+    if os.access(beside, os.X_OK):
+        return [str(beside)]
+    found = shutil.which(name)
+    if found and Path(found).parent == Path(sys.executable).parent:
+        return [found]
+    return [sys.executable, '-c',
+            f'import sys; from brace_control.nodes.{name} import main; sys.exit(main())']
+
+
+class ProcessBringUp:
+    """Each node as its own process (``--processes``)."""
+
+    def __init__(self, config: str | Path, *, sim: bool = True, nodes: Sequence[str] = NODE_NAMES,
+                 extra_args: Sequence[str] = (), env: dict[str, str] | None = None) -> None:
+        self.config_path = resolve_device_file(config)
+        load_device_config(self.config_path)           # fail early on a broken file
+        self.names = tuple(nodes)
+        self.args = ros_args(self.config_path, sim=sim, extra=extra_args)
+        self.env = dict(os.environ if env is None else env)
+        pkg_root = str(Path(__file__).resolve().parent.parent)
+        self.env['PYTHONPATH'] = os.pathsep.join(
+            p for p in (self.env.get('PYTHONPATH', ''), pkg_root) if p)
+        self.procs: dict[str, subprocess.Popen] = {}
+
+    def start(self) -> 'ProcessBringUp':
+        for name in self.names:
+            # own session: a terminal Ctrl-C reaches only the bring-up, which disables the
+            # drives before it forwards SIGINT to the nodes
+            self.procs[name] = subprocess.Popen([*find_executable(name), *self.args], env=self.env,
+                                                start_new_session=True)
+        return self
+
+    def failed(self) -> dict[str, int]:
+        """Nodes whose process has ended (name -> return code)."""
+        return {n: p.returncode for n, p in self.procs.items() if p.poll() is not None}
+
+    def stop(self, timeout: float = 10.0) -> dict[str, int]:
+        """SIGINT every process (reverse data-flow order), SIGKILL after ``timeout``."""
+        for name in reversed(self.names):
+            p = self.procs.get(name)
+            if p is not None and p.poll() is None:
+                p.send_signal(signal.SIGINT)
+        deadline = time.monotonic() + timeout
+        codes = {}
+        for name, p in self.procs.items():
+            try:
+                codes[name] = p.wait(max(deadline - time.monotonic(), 0.1))
+            except subprocess.TimeoutExpired:
+                p.kill()
+                codes[name] = p.wait()
+        return codes
+
+
+# ---------------------------------------------------------------------------- CLI
+
+def _parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog='brace-bringup', description=__doc__.split('\n\n')[0])
+    ap.add_argument('config', help='device YAML (path, or a device name in config/)')
+    ap.add_argument('--processes', action='store_true', help='each node as its own process')
+    ap.add_argument('--no-sim', action='store_true', help='real bus: do not start the simulated brace')
+    ap.add_argument('--executor', choices=('per-node', 'multi'), default='per-node',
+                    help='one process: an executor per node (default) or one MultiThreadedExecutor')
+    ap.add_argument('--nodes', nargs='+', choices=NODE_NAMES, default=list(NODE_NAMES),
+                    help='start only these nodes')
+    return ap
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    extra: list[str] = []
+    if '--ros-args' in argv:
+        i = argv.index('--ros-args')
+        argv, extra = argv[:i], argv[i + 1:]
+    args = _parser().parse_args(argv)
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+
+    stop = threading.Event()
+    # Our own handlers: on Ctrl-C the context must stay up until the drives are disabled.
+    rclpy.init(args=['brace-bringup'], signal_handler_options=SignalHandlerOptions.NO)
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    try:
+        if args.processes:
+            return _run_processes(args, extra, stop)
+        return _run_in_process(args, extra, stop)
+    except ConfigError as exc:
+        print(f'brace-bringup: configuration error: {exc}', file=sys.stderr)
+        return 2
+    finally:
+        rclpy.try_shutdown()
+
+
+def _run_in_process(args: argparse.Namespace, extra: list[str], stop: threading.Event) -> int:
+    bringup = BringUp(args.config, sim=not args.no_sim, nodes=args.nodes, extra_args=extra,
+                      executor=args.executor)
+    log = bringup.helper.get_logger()
+    bringup.start()
+    log.info(f'{", ".join(bringup.names)} up ({bringup.config_path}); Ctrl-C to stop')
+    while not stop.wait(0.2):
+        if not bringup.running:
+            log.error('executor stopped unexpectedly')
+            bringup.shutdown()
+            return 1
+    log.info('shutting down: disabling the drives first')
+    bringup.shutdown()
+    return 0
+
+
+def _run_processes(args: argparse.Namespace, extra: list[str], stop: threading.Event) -> int:
+    import rclpy
+    group = ProcessBringUp(args.config, sim=not args.no_sim, nodes=args.nodes, extra_args=extra)
+    helper = rclpy.create_node('brace_bringup')
+    log = helper.get_logger()
+    group.start()
+    log.info(f'{", ".join(group.names)} started as processes; Ctrl-C to stop')
+    rc = 0
+    while not stop.wait(0.2):
+        dead = group.failed()
+        if dead:
+            log.error(f'node process(es) ended: {dead}; stopping the others')
+            rc = 1
+            break
+    if DRIVER in group.names and group.procs[DRIVER].poll() is None:
+        ok, msg = disable_drives(helper)
+        (log.info if ok else log.error)(f'drives disabled: {msg}' if ok
+                                        else f'disabling the drives failed: {msg}')
+    codes = group.stop()
+    bad = {n: c for n, c in codes.items() if c not in (0, -signal.SIGINT)}
+    if bad:
+        log.error(f'exit codes: {bad}')
+        rc = 1
+    helper.destroy_node()
+    return rc
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

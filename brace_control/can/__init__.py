@@ -1,0 +1,35 @@
+"""CiA 402 master over python ``canopen`` on a python-can bus (see docs/can.md).
+
+>>> from brace_control.config import load_device_config
+>>> from brace_control.can import BraceMaster
+>>> master = BraceMaster.from_device_config(load_device_config('lumbar_brace'), channel='t1')
+>>> master.boot(); master.home(); master.enable(); master.set_targets([0.39, 0.39, 0.39])
+
+* :mod:`.master`: :class:`BraceMaster` (boot, SDO configuration, PDO mapping, NMT, 402
+  state machine, homing, cyclic SYNC thread), :class:`MasterConfig`.
+* :mod:`.units`: every SI <-> device-unit conversion.
+* :mod:`.cia402`: statusword / controlword / NMT / EMCY codes.
+* :mod:`.supervision`: fault kinds, latching, monitors, error-frame decoding.
+* :mod:`.timing`: absolute-deadline periodic loop and its statistics.
+* :mod:`.framelog`: python-can frame log of the bus and its replay.
+* :mod:`.errors`: the exception hierarchy (python-can style).
+"""
+from .cia402 import Controlword, NmtState, OpMode, State402, Statusword, decode_state, emcy_description
+from .errors import (DriverError, DriverInitializationError, DriverOperationError,
+                     DriverTimeoutError, FaultLatchedError)
+from .master import (BraceMaster, BusStatus, DriveStatus, Feedback, MasterConfig, MasterState,
+                     MasterStatus)
+from .supervision import Fault, FaultKind, Limits, Supervisor
+from .timing import PeriodStats, TimingReport
+from .units import AxisScaling, scaling_from_config
+
+CiA402Master = BraceMaster
+"""Alias: the master is a generic CiA 402 CSP master; the brace is its only user so far."""
+
+__all__ = [
+    'BraceMaster', 'CiA402Master', 'MasterConfig', 'MasterState', 'MasterStatus', 'DriveStatus',
+    'BusStatus', 'Feedback', 'AxisScaling', 'scaling_from_config', 'State402', 'Statusword',
+    'Controlword', 'NmtState', 'OpMode', 'decode_state', 'emcy_description', 'Fault', 'FaultKind',
+    'Limits', 'Supervisor', 'PeriodStats', 'TimingReport', 'DriverError',
+    'DriverInitializationError', 'DriverOperationError', 'DriverTimeoutError', 'FaultLatchedError',
+]

@@ -1,0 +1,379 @@
+"""Fault model of the CAN layer: what counts as a fault, how it latches, when it may clear.
+
+SAFETY.md items 1–9 and 11. Any fault puts the master into a protective stop (quick
+stop 6040h = 0x0002, targets held) and stays latched until an explicit ``recover()``;
+``recover()`` clears the latch only when every fault's cause is gone (each
+:class:`Fault` carries a ``still_present`` predicate the master evaluates then).
+Warnings (error-passive bus, stale setpoints) are reported, never latched.
+
+Pure logic, no bus: :class:`Supervisor` latches, :class:`Limits` holds the thresholds
+from the device YAML, :func:`check_sample` / :func:`check_step` are the per-cycle
+monitors, :func:`decode_error_frame` reads SocketCAN-style error frames.
+
+Fault matrix (reaction: quick stop of every drive on the next SYNC cycle, targets held;
+bounds at 500 Hz, tested in test/test_can_master.py with 50 ms of scheduling slack):
+
+=====================  ==========================================  =====================  ==========================================
+kind                   detected when                               bound                  cause gone (``recover`` may clear) when
+=====================  ==========================================  =====================  ==========================================
+BOOT_TIMEOUT           no boot-up / heartbeat within boot_timeout   boot_timeout           heartbeat received
+HEARTBEAT_LOST         heartbeat age > heartbeat_consumer_ms        150 ms                 heartbeats again
+NMT_STATE              boot-up message / NMT state not OPERATIONAL  next heartbeat         OPERATIONAL (recover re-configures it)
+BUS_OFF                bus-off error frame                          1 frame                RESTARTED / back-to-active error frame
+SEND_FAILED            ``bus.send`` raises (ENOBUFS, TX full)       1 period               the next send succeeds
+EMCY                   EMCY with code ≠ 0                           1 frame                drive out of FAULT after the reset and no
+                                                                                           new EMCY since
+DRIVE_FAULT            statusword bit 3                             1 period               drive out of FAULT after the fault reset
+STEP_LIMIT             |Δtarget| > v·dt + margin, v ramped near     1 period               no fresh setpoint that still violates it
+                       the stroke ends
+OVERSPEED              measured speed > 1.5·v_max                   6 samples              speed back below
+FORCE_LIMIT            |load cell| > force_limit                    1 period               force back below
+WRENCH_LIMIT           platform wrench > max_wrench (node, 100 Hz)  1 joint_states period  wrench back below
+STALE_FEEDBACK         no TPDO1 while the other drives sent         3 periods (100 ms if   TPDO1 again
+                       stale_periods each (all silent: 2 x master   all drives silent)
+                       heartbeat = the drives' own consumer time)
+POSITION_JUMP          |Δposition| > 4·v_max·Δt + margin            1 period               at once (momentary); re-homing required
+LOAD_CELL_SATURATED    |counts| ≥ saturation_fraction·full scale    1 period               reading back below
+FOLLOWING_ERROR        |target − actual| > path_tolerance           tolerance / speed      error back within the tolerance
+=====================  ==========================================  =====================  ==========================================
+"""
+from __future__ import annotations
+
+import enum
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import can
+
+from ..config import ConfigError
+from .units import AxisScaling
+
+__all__ = [
+    'FaultKind', 'Fault', 'Warning_', 'Supervisor', 'Limits', 'Sample',
+    'check_sample', 'check_step', 'ErrorFrame', 'decode_error_frame',
+]
+
+
+class FaultKind(enum.Enum):
+    """Why the master stopped; ``value`` is the short text used in reports."""
+
+    BOOT_TIMEOUT = 'boot timeout'                  # SAFETY 2
+    HEARTBEAT_LOST = 'heartbeat lost'              # SAFETY 2
+    NMT_STATE = 'drive left OPERATIONAL'           # SAFETY 2 (reboot, NMT stop)
+    BUS_OFF = 'bus off'                            # SAFETY 3
+    SEND_FAILED = 'send failed'                    # SAFETY 3
+    EMCY = 'emergency'                             # SAFETY 4
+    DRIVE_FAULT = 'drive fault'                    # SAFETY 4 (statusword bit 3)
+    STEP_LIMIT = 'step limit'                      # SAFETY 5, 7
+    OVERSPEED = 'overspeed'                        # SAFETY 8
+    FORCE_LIMIT = 'force limit'                    # SAFETY 8
+    WRENCH_LIMIT = 'wrench limit'                  # SAFETY 8 (reported by the node)
+    STALE_FEEDBACK = 'stale feedback'              # SAFETY 9
+    POSITION_JUMP = 'impossible position jump'     # SAFETY 9
+    LOAD_CELL_SATURATED = 'load cell saturated'    # SAFETY 9
+    FOLLOWING_ERROR = 'following error'            # SAFETY 11
+    CYCLE_STOPPED = 'SYNC thread stopped'          # the master's own cycle died
+    EXTERNAL = 'external stop'                     # reported by a caller
+
+
+@dataclass(frozen=True)
+class Fault:
+    """One latched fault.
+
+    :param still_present: evaluated at ``recover()``; ``True`` keeps the latch. ``None``:
+        a momentary event whose cause is gone once it has been reported.
+    """
+
+    kind: FaultKind
+    cause: str
+    drive: str | None = None
+    code: int | None = None
+    time: float = field(default_factory=time.monotonic)
+    still_present: Callable[[], bool] | None = field(default=None, compare=False, repr=False)
+
+    def describe(self) -> str:
+        who = f'{self.drive}: ' if self.drive else ''
+        return f'{who}{self.kind.value}: {self.cause}'
+
+
+@dataclass(frozen=True)
+class Warning_:
+    """A reported, non-latching condition (error-passive bus, stale setpoints)."""
+
+    key: str
+    message: str
+    time: float = field(default_factory=time.monotonic)
+
+
+class Supervisor:
+    """Latches faults (thread-safe); the first fault is the one a report leads with.
+
+    :param on_fault: called (outside the lock) once per newly latched fault; the master
+        uses it to start the protective stop at once.
+    """
+
+    def __init__(self, *, on_fault: Callable[[Fault], None] | None = None,
+                 history: int = 200) -> None:
+        self._lock = threading.Lock()
+        self._faults: dict[tuple[FaultKind, str | None], Fault] = {}
+        self._warnings: dict[str, Warning_] = {}
+        self.history: deque[Fault] = deque(maxlen=history)
+        self._on_fault = on_fault
+
+    # -- faults ----------------------------------------------------------------------
+    def report(self, kind: FaultKind, cause: str, *, drive: str | None = None,
+               code: int | None = None,
+               still_present: Callable[[], bool] | None = None) -> Fault | None:
+        """Latch a fault; returns it, or ``None`` if the same kind is already latched for ``drive``."""
+        fault = Fault(kind, cause, drive, code, time.monotonic(), still_present)
+        with self._lock:
+            if (kind, drive) in self._faults:
+                return None
+            self._faults[(kind, drive)] = fault
+            self.history.append(fault)
+        if self._on_fault is not None:
+            self._on_fault(fault)
+        return fault
+
+    @property
+    def latched(self) -> bool:
+        return bool(self._faults)
+
+    @property
+    def faults(self) -> tuple[Fault, ...]:
+        """Latched faults, oldest first."""
+        with self._lock:
+            return tuple(sorted(self._faults.values(), key=lambda f: f.time))
+
+    @property
+    def first(self) -> Fault | None:
+        faults = self.faults
+        return faults[0] if faults else None
+
+    def has(self, kind: FaultKind, drive: str | None = ...) -> bool:  # type: ignore[assignment]
+        with self._lock:
+            return any(k == kind and (drive is ... or d == drive) for k, d in self._faults)
+
+    def blocking(self) -> list[Fault]:
+        """Latched faults whose cause is still present."""
+        out = []
+        for f in self.faults:
+            try:
+                present = f.still_present() if f.still_present is not None else False
+            except Exception:  # noqa: BLE001 - a predicate that cannot tell keeps the latch
+                present = True
+            if present:
+                out.append(f)
+        return out
+
+    def try_clear(self) -> list[Fault]:
+        """Clear the latch if no cause is present; returns the faults that block it."""
+        blocking = self.blocking()
+        if not blocking:
+            with self._lock:
+                self._faults.clear()
+        return blocking
+
+    def summary(self) -> str:
+        faults = self.faults
+        if not faults:
+            return 'no fault'
+        return '; '.join(f.describe() for f in faults)
+
+    # -- warnings ----------------------------------------------------------------------
+    def warn(self, key: str, message: str) -> None:
+        with self._lock:
+            self._warnings[key] = Warning_(key, message)
+
+    def unwarn(self, key: str) -> None:
+        with self._lock:
+            self._warnings.pop(key, None)
+
+    @property
+    def warnings(self) -> tuple[Warning_, ...]:
+        with self._lock:
+            return tuple(self._warnings.values())
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Thresholds of the monitors, SI, from the device YAML (``actuator.*``, ``safety.*``, ``can.*``)."""
+
+    period: float                  # s, SYNC period
+    v_max: float                   # m/s (rad/s)
+    a_max: float                   # m/s²
+    stroke: tuple[float, float]    # m
+    step_margin: float             # m
+    path_tolerance: float          # m
+    force_limit: float             # N
+    saturation_counts: int         # |2401h| at or above -> saturated
+    stale_periods: int
+    heartbeat_timeout: float       # s
+    boot_timeout: float            # s
+    command_timeout: float         # s
+    jump_factor: float = 4.0       # a step above jump_factor·v_max·Δt + margin is impossible
+    speed_factor: float = 1.5      # measured speed above speed_factor·v_max -> overspeed
+
+    @classmethod
+    def from_config(cls, cfg: Mapping[str, Any], scaling: AxisScaling) -> Limits:
+        """Read the thresholds; :class:`ConfigError` names a missing parameter."""
+        def get(dotted: str) -> Any:
+            node: Any = cfg
+            for key in dotted.split('.'):
+                if not isinstance(node, Mapping) or key not in node:
+                    raise ConfigError(f'parameter {dotted!r} is missing')
+                node = node[key]
+            return node
+        mech = cfg.get('mechanism', {}) if isinstance(cfg.get('mechanism'), Mapping) else {}
+        lo = float(mech.get('stroke_min', -math.inf))
+        hi = float(mech.get('stroke_max', math.inf))
+        if lo >= hi:
+            raise ConfigError(f'mechanism.stroke_min {lo} must be below mechanism.stroke_max {hi}')
+        consumer = float(get('can.heartbeat_consumer_ms'))
+        producer = float(get('can.drive_heartbeat_ms'))
+        if consumer <= producer:
+            raise ConfigError(
+                f'parameter can.heartbeat_consumer_ms = {consumer:g} must exceed '
+                f'can.drive_heartbeat_ms = {producer:g} (SAFETY.md item 2)')
+        force_limit = float(get('safety.force_limit'))
+        return cls(
+            period=1.0 / float(get('can.sync_rate_hz')),
+            v_max=float(get('actuator.max_velocity')),
+            a_max=float(get('actuator.max_acceleration')),
+            stroke=(lo, hi),
+            step_margin=float(get('safety.step_margin')),
+            path_tolerance=float(get('safety.path_tolerance')),
+            force_limit=force_limit,
+            saturation_counts=scaling.saturation_counts(float(get('safety.saturation_fraction'))),
+            stale_periods=int(get('safety.stale_periods')),
+            heartbeat_timeout=consumer / 1000.0,
+            boot_timeout=float(get('can.boot_timeout')),
+            command_timeout=float(get('safety.command_timeout')),
+        )
+
+    def max_step(self, current: float, new: float, dt: float) -> float:
+        """Largest allowed |new − current| over ``dt``: ``v·dt + margin`` (SAFETY 7).
+
+        ``v`` is ``v_max``, ramped down near the stroke end being approached
+        (``v ≤ √(2·a_max·d)``, ``d`` the distance from ``new`` to that end; SAFETY 5).
+        """
+        lo, hi = self.stroke
+        d = (hi - new) if new > current else (new - lo)
+        v = min(self.v_max, math.sqrt(2.0 * self.a_max * max(d, 0.0)))
+        return v * dt + self.step_margin
+
+
+@dataclass
+class Sample:
+    """One TPDO1 of one drive, SI (position m, force N) plus the raw load-cell counts."""
+
+    statusword: int
+    position: float
+    force: float
+    load_counts: int
+    sync_index: int               # SYNC this sample answers
+    time: float                   # perf_counter of that SYNC
+
+
+def check_step(drive: str, current: float, new: float, dt: float, limits: Limits) -> str | None:
+    """Cause text if a new target violates the stroke or the per-command step limit, else None."""
+    lo, hi = limits.stroke
+    if not lo <= new <= hi:
+        return f'target {new:.5f} m is outside the stroke {lo:.3f}–{hi:.3f} m'
+    allowed = limits.max_step(current, new, dt)
+    if abs(new - current) > allowed:
+        return (f'target step {abs(new - current) * 1e3:.3f} mm in {dt * 1e3:.1f} ms exceeds '
+                f'{allowed * 1e3:.3f} mm (v_max·dt + margin)')
+    return None
+
+
+def check_sample(prev: Sample | None, cur: Sample, limits: Limits, *,
+                 commanded: float | None) -> list[tuple[FaultKind, str]]:
+    """Per-sample monitors of one drive: saturation, force, jump, following error.
+
+    ``commanded`` is the target the drive should track (``None``: not tracking, e.g.
+    disabled or homing: no following-error or jump check).
+    """
+    out: list[tuple[FaultKind, str]] = []
+    if abs(cur.load_counts) >= limits.saturation_counts:
+        out.append((FaultKind.LOAD_CELL_SATURATED,
+                    f'load cell reads {cur.load_counts} counts ({cur.force:.1f} N), '
+                    f'saturation at ±{limits.saturation_counts}'))
+    elif abs(cur.force) > limits.force_limit:
+        out.append((FaultKind.FORCE_LIMIT,
+                    f'load-cell force {cur.force:.1f} N exceeds {limits.force_limit:.1f} N'))
+    if commanded is not None:
+        if prev is not None and cur.sync_index > prev.sync_index:
+            dt = (cur.sync_index - prev.sync_index) * limits.period
+            jump = abs(cur.position - prev.position)
+            bound = limits.jump_factor * limits.v_max * dt + limits.step_margin
+            if jump > bound:
+                out.append((FaultKind.POSITION_JUMP,
+                            f'position changed {jump * 1e3:.3f} mm in {dt * 1e3:.1f} ms '
+                            f'(physically at most {bound * 1e3:.3f} mm)'))
+        err = abs(commanded - cur.position)
+        if err > limits.path_tolerance:
+            out.append((FaultKind.FOLLOWING_ERROR,
+                        f'actual {cur.position:.5f} m is {err * 1e3:.2f} mm from the target '
+                        f'{commanded:.5f} m (path tolerance {limits.path_tolerance * 1e3:.2f} mm)'))
+    return out
+
+
+# ---------------------------------------------------------------------- error frames
+
+# SocketCAN linux/can/error.h: error class bits in the identifier, controller status in data[1]
+CAN_ERR_TX_TIMEOUT = 0x001
+CAN_ERR_LOSTARB = 0x002
+CAN_ERR_CRTL = 0x004
+CAN_ERR_PROT = 0x008
+CAN_ERR_TRX = 0x010
+CAN_ERR_ACK = 0x020
+CAN_ERR_BUSOFF = 0x040
+CAN_ERR_BUSERROR = 0x080
+CAN_ERR_RESTARTED = 0x100
+CAN_ERR_CRTL_RX_WARNING = 0x04
+CAN_ERR_CRTL_TX_WARNING = 0x08
+CAN_ERR_CRTL_RX_PASSIVE = 0x10
+CAN_ERR_CRTL_TX_PASSIVE = 0x20
+CAN_ERR_CRTL_ACTIVE = 0x40
+
+
+@dataclass(frozen=True)
+class ErrorFrame:
+    """A decoded error frame (SocketCAN layout, which python-can passes through)."""
+
+    bus_off: bool
+    error_passive: bool
+    error_warning: bool
+    back_to_active: bool
+    restarted: bool
+    description: str
+
+
+def decode_error_frame(msg: can.Message) -> ErrorFrame:
+    """Decode ``msg.is_error_frame`` messages: class bits in the id, controller status in data[1]."""
+    cls = msg.arbitration_id
+    ctrl = msg.data[1] if (cls & CAN_ERR_CRTL) and len(msg.data) > 1 else 0
+    parts = []
+    names = ((CAN_ERR_TX_TIMEOUT, 'TX timeout'), (CAN_ERR_LOSTARB, 'lost arbitration'),
+             (CAN_ERR_PROT, 'protocol violation'), (CAN_ERR_TRX, 'transceiver'),
+             (CAN_ERR_ACK, 'no ACK'), (CAN_ERR_BUSOFF, 'bus off'), (CAN_ERR_BUSERROR, 'bus error'),
+             (CAN_ERR_RESTARTED, 'controller restarted'))
+    parts += [text for bit, text in names if cls & bit]
+    cnames = ((CAN_ERR_CRTL_RX_WARNING, 'RX warning'), (CAN_ERR_CRTL_TX_WARNING, 'TX warning'),
+              (CAN_ERR_CRTL_RX_PASSIVE, 'RX error passive'), (CAN_ERR_CRTL_TX_PASSIVE, 'TX error passive'),
+              (CAN_ERR_CRTL_ACTIVE, 'back to error active'))
+    parts += [text for bit, text in cnames if ctrl & bit]
+    return ErrorFrame(
+        bus_off=bool(cls & CAN_ERR_BUSOFF),
+        error_passive=bool(ctrl & (CAN_ERR_CRTL_RX_PASSIVE | CAN_ERR_CRTL_TX_PASSIVE)),
+        error_warning=bool(ctrl & (CAN_ERR_CRTL_RX_WARNING | CAN_ERR_CRTL_TX_WARNING)),
+        back_to_active=bool(ctrl & CAN_ERR_CRTL_ACTIVE),
+        restarted=bool(cls & CAN_ERR_RESTARTED),
+        description=', '.join(parts) or f'error frame 0x{cls:03X}',
+    )

@@ -1,0 +1,133 @@
+"""Unit scaling between SI and the drives' device units — the only place it happens.
+
+docs/can.md, "Units":
+
+* linear actuators: counts per metre = ``encoder_counts_per_rev / screw_lead``
+  (8192 / 0.001 m = 8 192 000 counts/m) for 6064h position actual, 607Ah target,
+  607Ch home offset, 607Dh software limits, 6065h following error window; counts/s for
+  606Ch / 607Fh, counts/s² for 6083h–6085h;
+* rotary drives: counts per radian = ``encoder_counts_per_rev / (2π) × gear_ratio``;
+* load cell (2401h, INT16): N = counts × ``load_cell_n_per_count`` (push positive).
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from ..config import ConfigError
+
+__all__ = ['AxisScaling', 'scaling_from_config', 'INT16_MIN', 'INT16_MAX', 'INT32_MIN', 'INT32_MAX']
+
+INT16_MIN, INT16_MAX = -(1 << 15), (1 << 15) - 1
+INT32_MIN, INT32_MAX = -(1 << 31), (1 << 31) - 1
+
+
+def _clamp_int32(value: float, what: str) -> int:
+    counts = round(value)
+    if not INT32_MIN <= counts <= INT32_MAX:
+        raise OverflowError(f'{what} = {value:.0f} counts does not fit a 32-bit object')
+    return counts
+
+
+@dataclass(frozen=True)
+class AxisScaling:
+    """Device units of one axis (all drives of a device share it).
+
+    :param counts_per_unit: encoder counts per metre (linear) or per radian (rotary).
+    :param newton_per_count: load-cell input 2401h scaling, N (or N·m) per count.
+    :param rated_force: the load cell's full scale (N), for the saturation threshold.
+    """
+
+    counts_per_unit: float
+    newton_per_count: float
+    rated_force: float
+
+    def __post_init__(self) -> None:
+        for name in ('counts_per_unit', 'newton_per_count', 'rated_force'):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0.0):
+                raise ConfigError(f'{name} must be a positive number, got {v!r}')
+
+    @classmethod
+    def linear(cls, *, encoder_counts_per_rev: int, screw_lead_m: float,
+               newton_per_count: float, rated_force_n: float) -> AxisScaling:
+        """Lead-screw actuator: ``counts/m = counts_per_rev / lead``."""
+        return cls(encoder_counts_per_rev / screw_lead_m, newton_per_count, rated_force_n)
+
+    @classmethod
+    def rotary(cls, *, encoder_counts_per_rev: int, gear_ratio: float = 1.0,
+               newton_metre_per_count: float, rated_torque_nm: float) -> AxisScaling:
+        """Rotary joint: ``counts/rad = counts_per_rev / 2π × gear ratio``."""
+        return cls(encoder_counts_per_rev / (2.0 * math.pi) * gear_ratio,
+                   newton_metre_per_count, rated_torque_nm)
+
+    # -- position (6064h, 607Ah, 607Ch, 607Dh, 6065h) -----------------------------
+    def to_counts(self, position: float) -> int:
+        """m (or rad) -> counts, rounded; :class:`OverflowError` outside INT32."""
+        return _clamp_int32(position * self.counts_per_unit, 'position')
+
+    def to_si(self, counts: int | float) -> float:
+        """counts -> m (or rad)."""
+        return counts / self.counts_per_unit
+
+    # -- velocity (606Ch, 607Fh) and acceleration (6083h..6085h) ------------------
+    def velocity_to_counts(self, velocity: float) -> int:
+        """m/s -> counts/s."""
+        return _clamp_int32(velocity * self.counts_per_unit, 'velocity')
+
+    def velocity_to_si(self, counts_per_s: int | float) -> float:
+        """counts/s -> m/s."""
+        return counts_per_s / self.counts_per_unit
+
+    def acceleration_to_counts(self, acceleration: float) -> int:
+        """m/s² -> counts/s²."""
+        return _clamp_int32(acceleration * self.counts_per_unit, 'acceleration')
+
+    # -- load cell (2401h) ----------------------------------------------------------
+    def force_to_si(self, counts: int | float) -> float:
+        """Load-cell counts -> N (push positive)."""
+        return counts * self.newton_per_count
+
+    def force_to_counts(self, force: float) -> int:
+        """N -> load-cell counts, saturated to INT16 (what a real amplifier does)."""
+        return max(INT16_MIN, min(INT16_MAX, round(force / self.newton_per_count)))
+
+    def saturation_counts(self, fraction: float) -> int:
+        """|counts| at or above which the load cell counts as saturated.
+
+        ``fraction`` of the rated full scale, never above what INT16 can show.
+        """
+        return min(INT16_MAX, math.floor(fraction * self.rated_force / self.newton_per_count))
+
+
+def scaling_from_config(cfg: Mapping[str, Any]) -> AxisScaling:
+    """The device's :class:`AxisScaling` from its YAML (``actuator.*``).
+
+    A rotary device sets ``actuator.gear_ratio`` and no ``screw_lead``; the load cell
+    then reads torque (N·m per count).
+
+    :raises ConfigError: a missing or non-positive value, naming the parameter.
+    """
+    act = cfg.get('actuator') if isinstance(cfg.get('actuator'), Mapping) else None
+    if act is None:
+        raise ConfigError('device config has no "actuator" section')
+
+    def num(key: str) -> float:
+        if key not in act:
+            raise ConfigError(f'parameter actuator.{key!r} is missing')
+        v = act[key]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+            raise ConfigError(f'parameter actuator.{key} = {v!r} must be a positive number')
+        return float(v)
+
+    cpr = num('encoder_counts_per_rev')
+    if 'screw_lead' in act:
+        return AxisScaling.linear(encoder_counts_per_rev=int(cpr), screw_lead_m=num('screw_lead'),
+                                  newton_per_count=num('load_cell_n_per_count'),
+                                  rated_force_n=num('load_cell_rated_force'))
+    return AxisScaling.rotary(encoder_counts_per_rev=int(cpr),
+                              gear_ratio=num('gear_ratio') if 'gear_ratio' in act else 1.0,
+                              newton_metre_per_count=num('load_cell_n_per_count'),
+                              rated_torque_nm=num('load_cell_rated_force'))

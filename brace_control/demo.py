@@ -1,0 +1,325 @@
+"""``make demo``: the lumbar brace on the simulated CAN bus, end to end.
+
+    python -m brace_control.demo --device lumbar_brace --out demo_output
+
+1. builds the bundled exercise (:mod:`brace_control.exercise`) into ``OUT/exercise``;
+2. brings the four nodes up with the simulated brace on the virtual bus, each node as
+   its own process (:class:`brace_control.bringup.ProcessBringUp`; ``--in-process``: all
+   in this process, :class:`~brace_control.bringup.BringUp`), homes and enables the
+   drives (the CAN driver's ``home`` / ``enable`` services);
+3. records every brace topic and ``/diagnostics`` to ``OUT/run.mcap`` while it replays
+   the exercise onto ``/brace/pose_goal`` (a progress line on the terminal);
+4. disables the drives, shuts down, and writes ``OUT/run.png`` (commanded vs measured
+   pose, actuator lengths, load-cell forces, wrench over time) and a summary (goals
+   reached, max tracking error, peak forces).
+
+Exit code 0 when every goal was reached; 1 otherwise (or on a failure on the way).
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+__all__ = ['main', 'prepare_config', 'RECORDED_TOPICS']
+
+RECORDED_TOPICS = {
+    '/brace/pose_goal': 'geometry_msgs/msg/PoseStamped',
+    '/brace/pose_setpoint': 'geometry_msgs/msg/PoseStamped',
+    '/brace/actuator_setpoint': 'sensor_msgs/msg/JointState',
+    '/brace/joint_states': 'sensor_msgs/msg/JointState',
+    '/brace/pose': 'geometry_msgs/msg/PoseStamped',
+    '/brace/wrench': 'geometry_msgs/msg/WrenchStamped',
+    '/brace/goal_status': 'diagnostic_msgs/msg/DiagnosticStatus',
+    '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
+}
+
+
+def prepare_config(device: str, out: Path) -> tuple[Path, str | None]:
+    """The device file to run; ``(path, note)``.
+
+    If the device's home pose is singular (the lumbar brace's ``theta = 0`` poses are:
+    its anchor rows are parallel and the leg lines meet in one point), nothing can be
+    planned from it, so the demo parks the brace tilted by the exercise's neutral tilt:
+    a copy of the file with ``mechanism.home_pose`` and ``sim.rest_pose`` turned by it.
+    """
+    from .config import load_device_config, resolve_device_file
+    from .exercise import NEUTRAL_TILT
+    from .mechanisms import mechanism_from_config
+    path = resolve_device_file(device)
+    cfg = load_device_config(path)
+    mech = mechanism_from_config(cfg)
+    if mech.in_workspace(mech.home_pose) or mech.dof != 3:
+        return path, None
+    doc = yaml.safe_load(path.read_text())
+    params = doc['/**']['ros__parameters']
+    home = list(params['mechanism']['home_pose'])
+    home[2] = float(home[2]) + NEUTRAL_TILT
+    params['mechanism']['home_pose'] = home
+    if 'sim' in params and 'rest_pose' in params['sim']:
+        rest = list(params['sim']['rest_pose'])
+        rest[2] = float(rest[2]) + NEUTRAL_TILT
+        params['sim']['rest_pose'] = rest
+    for key in ('eds',):
+        if key in params.get('can', {}):
+            params['can'][key] = str(cfg.relative_file(params['can'][key]))
+    derived = out / path.name
+    derived.write_text(f'# {path} with the brace parked at theta = {math.degrees(NEUTRAL_TILT):.1f} deg '
+                       '(written by brace_control.demo)\n' + yaml.safe_dump(doc, sort_keys=False))
+    note = (f'home pose {np.round(mech.home_pose, 4).tolist()} is singular (theta = 0); the brace '
+            f'is parked at theta = {math.degrees(NEUTRAL_TILT):.1f} deg instead ({derived})')
+    return derived, note
+
+
+def _find_service(node, suffix: str, timeout: float) -> str | None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        for name, types in node.get_service_names_and_types():
+            if name.rstrip('/').split('/')[-1] == suffix and 'std_srvs/srv/Trigger' in types:
+                return name
+        time.sleep(0.1)
+    return None
+
+
+def _pkg_path() -> str:
+    root = str(Path(__file__).resolve().parent.parent)
+    return os.pathsep.join(p for p in (os.environ.get('PYTHONPATH', ''), root) if p)
+
+
+def _wait_recording(node, topics: list[str], proc, timeout: float = 20.0) -> None:
+    """Until the recorder process subscribes every topic (it knows their types from the graph)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise RuntimeError(f'recorder exited: {proc.stderr.read()[-500:]}')
+        subs = {t: node.get_subscriptions_info_by_topic(t) for t in topics}
+        if all(any(i.node_name == 'brace_bag' for i in infos) for infos in subs.values()):
+            return
+        time.sleep(0.1)
+    missing = [t for t in topics if not any(i.node_name == 'brace_bag'
+                                            for i in node.get_subscriptions_info_by_topic(t))]
+    raise RuntimeError(f'recorder did not subscribe {missing} within {timeout} s')
+
+
+class _Watch:
+    """The demo's own node: measured pose / wrench and goal events for the progress line."""
+
+    def __init__(self, node) -> None:
+        from diagnostic_msgs.msg import DiagnosticStatus
+        from geometry_msgs.msg import PoseStamped, WrenchStamped
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        self.pose: np.ndarray | None = None
+        self.wrench: np.ndarray | None = None
+        self.events: list[tuple[str, str, str]] = []
+        node.create_subscription(PoseStamped, '/brace/pose', self._on_pose, qos)
+        node.create_subscription(WrenchStamped, '/brace/wrench', self._on_wrench, qos)
+        node.create_subscription(DiagnosticStatus, '/brace/goal_status', self._on_status,
+                                 QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE))
+
+    def _on_pose(self, m) -> None:
+        o = m.pose.orientation
+        self.pose = np.array([m.pose.position.x, m.pose.position.y,
+                              math.atan2(2 * (o.w * o.z + o.x * o.y), 1 - 2 * (o.y ** 2 + o.z ** 2))])
+
+    def _on_wrench(self, m) -> None:
+        self.wrench = np.array([m.wrench.force.x, m.wrench.force.y, m.wrench.torque.z])
+
+    def _on_status(self, m) -> None:
+        v = {kv.key: kv.value for kv in m.values}
+        self.events.append((v.get('goal_id', '?'), v.get('state', m.message), v.get('reason', '')))
+
+    def ended(self, state: str) -> int:
+        return sum(1 for _, s, _ in self.events if s == state)
+
+
+class _Progress:
+    def __init__(self, watch: _Watch, goals) -> None:
+        self.watch = watch
+        self.goals = goals
+        self.tty = sys.stdout.isatty()
+        self._last = 0.0
+
+    def __call__(self, t: float, duration: float) -> None:
+        now = time.monotonic()
+        if now - self._last < (0.2 if self.tty else 2.0) and t < duration:
+            return
+        self._last = now
+        k = sum(1 for g in self.goals if g.t <= t + 1e-9)
+        label = self.goals[k - 1].label if k else 'starting'
+        pose, wrench = self.watch.pose, self.watch.wrench
+        parts = [f'[{t:5.1f}/{duration:4.1f} s] goal {k}/{len(self.goals)} {label:26s}',
+                 f'done {self.watch.ended("succeeded")} failed '
+                 f'{self.watch.ended("aborted") + self.watch.ended("rejected")}']
+        if pose is not None:
+            parts.append(f'x={pose[0] * 1e3:+6.1f} mm y={pose[1] * 1e3:6.1f} mm '
+                         f'th={math.degrees(pose[2]):+5.1f} deg')
+        if wrench is not None:
+            parts.append(f'F=({wrench[0]:+6.1f}, {wrench[1]:+6.1f}) N M={wrench[2]:+5.2f} N·m')
+        line = ' | '.join(parts)
+        print(('\r' + line) if self.tty else line, end='' if self.tty else '\n', flush=True)
+
+
+#: Human (rehabilitation) pace: Fitts' law intercept of 2 s instead of the YAML's 0.2 s, so a
+#: 15 mm shift or a 5 deg turn takes ~2.5 s. Fast reaches near the lumbar brace's
+#: theta = 0 singularity amplify microns of actuator lag into millimetres of pose error
+#: (at theta = 5 deg, 10 um on a2 moves x by 3.4 mm) and trip the tracking check.
+DEMO_PARAMS = ('-p', 'trajectory.fitts_a:=2.0')
+
+
+def run_demo(device: str, out: Path, *, rate: float = 1.0, settle: float = 3.0,
+             processes: bool = False, extra_args: Sequence[str] = DEMO_PARAMS) -> int:
+    """The demo; see the module docstring. Returns the exit code."""
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.signals import SignalHandlerOptions
+
+    from .bag import BagError, replay
+    from .bringup import BringUp, ProcessBringUp, call_trigger, disable_drives
+    from .demo_report import plot_run, read_run, summarise
+    from .exercise import build_exercise_bag
+
+    out.mkdir(parents=True, exist_ok=True)
+    for old in ('exercise', 'run.mcap', 'run.png'):
+        p = out / old
+        if p.is_dir():
+            shutil.rmtree(p)
+        elif p.exists():
+            p.unlink()
+    config, note = prepare_config(device, out)
+    if note:
+        print(f'note: {note}')
+    bag, goals = build_exercise_bag(out / 'exercise', config, spacing=4.0)
+    print(f'exercise: {len(goals)} goals over {goals[-1].t:.0f} s -> {bag}')
+
+    stop = threading.Event()
+    rclpy.init(args=['brace-demo'], signal_handler_options=SignalHandlerOptions.NO)
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    bringup = None
+    recorder = None
+    failure = None
+    node = rclpy.create_node('brace_demo')
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    threading.Thread(target=executor.spin, daemon=True, name='demo-executor').start()
+    watch = _Watch(node)
+    try:
+        t0 = time.monotonic()
+        if processes:
+            bringup = ProcessBringUp(config, extra_args=extra_args).start()
+        else:
+            bringup = BringUp(config, sim=True, extra_args=extra_args).start()
+        services = {}
+        for what in ('home', 'enable'):
+            name = _find_service(node, what, 30.0)
+            if name is None:
+                raise RuntimeError(f'the CAN driver offers no {what!r} Trigger service')
+            services[what] = name
+        mode = 'as processes' if processes else 'in this process'
+        print(f'bring-up: 4 nodes + simulated brace {mode} in {time.monotonic() - t0:.1f} s')
+        # the recorder runs in its own process: ~900 messages/s of raw writes stay off this
+        # interpreter (in one-process mode its GIL also runs the SYNC thread and the simulator)
+        recorder = subprocess.Popen(
+            [sys.executable, '-m', 'brace_control.bag', 'record', str(out / 'run.mcap'),
+             '--topics', *RECORDED_TOPICS], stderr=subprocess.PIPE, text=True,
+            start_new_session=True, env={**os.environ, 'PYTHONPATH': _pkg_path()})
+        _wait_recording(node, list(RECORDED_TOPICS), recorder)
+        for what in ('home', 'enable'):
+            ok, msg = call_trigger(node, services[what], timeout=20.0, executor=executor)
+            print(f'{what}: {"ok" if ok else "FAILED"} {msg}')
+            if not ok:
+                raise RuntimeError(f'{services[what]} failed: {msg}')
+        stats = replay(node, bag, rate=rate, wait_subscribers=1, wait_topics=['/brace/pose_goal'],
+                       stop=stop, progress=_Progress(watch, goals))
+        print()
+        if stop.is_set():
+            raise RuntimeError('interrupted')
+        # let the last motion finish (the last goal arrives at its bag time)
+        deadline = time.monotonic() + settle + 5.0
+        while time.monotonic() < deadline and not stop.is_set():
+            if len([e for e in watch.events if e[1] != 'accepted']) >= len(goals):
+                break
+            time.sleep(0.1)
+        time.sleep(0.5)
+        print(f'replayed {stats.total} goals in {stats.duration_s:.1f} s')
+    except (RuntimeError, BagError) as exc:
+        failure = str(exc)
+    finally:
+        if bringup is not None:
+            if processes:
+                ok, msg = disable_drives(node, executor=executor)     # drives first
+                print(f'disable: {"ok" if ok else "FAILED"} {msg}')
+                codes = bringup.stop()
+                if any(c != 0 for c in codes.values()):
+                    failure = failure or f'node exit codes {codes}'
+            else:
+                bringup.shutdown()                                    # drives disabled first
+        if recorder is not None:
+            recorder.send_signal(signal.SIGINT)
+            try:
+                _, err = recorder.communicate(timeout=30)
+                if recorder.returncode != 0:
+                    failure = failure or f'recorder failed: {err[-500:]}'
+            except subprocess.TimeoutExpired:
+                recorder.kill()
+                failure = failure or 'recorder did not stop'
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    if failure:
+        print(f'demo failed: {failure}', file=sys.stderr)
+        if not (out / 'run.mcap').exists():
+            return 1
+    run = read_run(out / 'run.mcap')
+    summary = summarise(run, [g.pose for g in goals])
+    plot_run(run, out / 'run.png', title=f'{device}: exercise on the simulated bus')
+    print(f'recorded {out / "run.mcap"}, plotted {out / "run.png"}')
+    for line in summary.lines():
+        print('  ' + line)
+    bad = [(g, s, r) for g, s, r in watch.events if s in ('aborted', 'rejected')]
+    for gid, state, reason in bad[:5]:
+        print(f'  goal {gid} {state}: {reason}')
+    if failure or summary.goals_reached < summary.goals:
+        stops = sorted({m.split(': ', 1)[-1] for _, lvl, name, m in run.diagnostics
+                        if lvl >= 2 and name.endswith('/safety')})
+        for m in stops[:3]:
+            print(f'  driver: {m}')
+        print(f'  load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs: late setpoints '
+              '(safety.command_timeout), a tracking error beyond safety.path_tolerance or a '
+              'protective stop ended goals early; see bench/RESULTS.md "End to end"')
+        return 1
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog='brace-demo', description=__doc__.split('\n\n')[0])
+    ap.add_argument('--device', default='lumbar_brace', help='device YAML or name in config/')
+    ap.add_argument('--out', default='demo_output', help='output directory')
+    ap.add_argument('--rate', type=float, default=1.0, help='replay speed factor')
+    ap.add_argument('--in-process', action='store_true',
+                    help='all nodes and the simulator in this process (default: each node as '
+                         'its own process; one process needs ~1 core of Python under one GIL, '
+                         'see bench/RESULTS.md "End to end")')
+    args, ros = ap.parse_known_args(argv)
+    extra = list(DEMO_PARAMS) + (ros[ros.index('--ros-args') + 1:] if '--ros-args' in ros else [])
+    if ros and '--ros-args' not in ros:
+        ap.error(f'unrecognized arguments: {ros}')
+    return run_demo(args.device, Path(args.out), rate=args.rate, processes=not args.in_process,
+                    extra_args=extra)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

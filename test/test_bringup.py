@@ -1,0 +1,92 @@
+"""Bring-up: nodes in one process (MultiThreadedExecutor) or as processes; clean shutdown."""
+from __future__ import annotations
+
+import ast
+import os
+import signal
+import subprocess
+import sys
+
+import pytest
+import rclpy
+from rclpy.context import Context
+from sensor_msgs.msg import JointState
+
+from brace_control.bringup import BringUp, find_executable, node_class
+from brace_control.nodes.ik_node import IkNode
+from brace_control.nodes.msgs import pose_msg
+from ros_helpers import LUMBAR_YAML, REPO, RELIABLE_10, ros  # noqa: F401
+
+MY_NODES = ['ik_node', 'kinetics_node']
+
+
+def test_launch_file_is_valid_python_with_the_four_nodes():
+    src = (REPO / 'launch' / 'brace.launch.py').read_text()
+    tree = ast.parse(src)
+    assert any(isinstance(n, ast.FunctionDef) and n.name == 'generate_launch_description'
+               for n in tree.body)
+    for name in ('trajectory_node', 'ik_node', 'can_driver_node', 'kinetics_node'):
+        assert f"'{name}'" in src
+
+
+def test_node_class_finds_the_node_of_a_module():
+    assert node_class('ik_node') is IkNode
+
+
+def test_find_executable_falls_back_to_the_module(monkeypatch):
+    monkeypatch.delenv('AMENT_PREFIX_PATH', raising=False)
+    cmd = find_executable('ik_node')
+    assert cmd[0].endswith('ik_node') or 'brace_control.nodes.ik_node' in cmd[-1]
+
+
+@pytest.mark.ros
+def test_in_process_bringup_carries_a_setpoint_and_shuts_down():
+    ctx = Context()
+    rclpy.init(context=ctx)
+    try:
+        b = BringUp(LUMBAR_YAML, nodes=MY_NODES, context=ctx).start()
+        try:
+            got: list = []
+            b.helper.create_subscription(JointState, '/brace/actuator_setpoint', got.append, RELIABLE_10)
+            pub = b.helper.create_publisher(type(pose_msg([0, 0.39, 0.05], frame_id='x')),
+                                            '/brace/pose_setpoint', RELIABLE_10)
+            import time
+            deadline = time.monotonic() + 10
+            while pub.get_subscription_count() < 1 or b.node('ik_node')._pub.get_subscription_count() < 1:
+                assert time.monotonic() < deadline, 'discovery'
+                time.sleep(0.01)
+            pub.publish(pose_msg([0.0, 0.39, 0.05], frame_id='brace_base'))
+            while not got:
+                assert time.monotonic() < deadline, 'no actuator setpoint'
+                time.sleep(0.01)
+            assert list(got[0].name) == ['a1', 'a2', 'a3']
+        finally:
+            b.shutdown()
+        assert not b.running
+    finally:
+        rclpy.shutdown(context=ctx)
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+@pytest.mark.parametrize('mode', [[], ['--processes']], ids=['one-process', 'processes'])
+def test_cli_stops_cleanly_on_sigint_and_sigterm(ros, mode):  # noqa: F811
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        proc = subprocess.Popen(
+            [sys.executable, '-m', 'brace_control.bringup', str(LUMBAR_YAML), *mode,
+             '--nodes', *MY_NODES], cwd=REPO, env=dict(os.environ),
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            probe = ros.node(f'probe_{sig.name.lower()}')
+            ros.spin_until(lambda: {'ik_node', 'kinetics_node'} <= set(probe.get_node_names())
+                           or proc.poll() is not None, timeout=20, what='nodes up')
+            assert proc.poll() is None, proc.communicate()[1][-2000:]
+            proc.send_signal(sig)
+            _, err = proc.communicate(timeout=30)
+            assert proc.returncode == 0, err[-2000:]
+            ros.spin_until(lambda: not {'ik_node', 'kinetics_node'} & set(probe.get_node_names()),
+                           timeout=15, what='nodes gone')
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()

@@ -1,0 +1,163 @@
+"""can_driver_node with rclpy: services, joint_states, setpoint validation, diagnostics.
+
+The node runs in-process with the simulated brace on its own virtual channel.
+"""
+from __future__ import annotations
+
+import itertools
+import os
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+
+from brace_control.can import FaultKind
+from brace_control.mechanisms import load_mechanism
+from brace_control.nodes.can_driver_node import CanDriverNode, main
+from ros_helpers import LUMBAR_YAML, RELIABLE_10, ros  # noqa: F401
+
+pytestmark = pytest.mark.ros
+_ids = itertools.count()
+_MECH = load_mechanism(LUMBAR_YAML)
+Q_HOME = _MECH.inverse(_MECH.home_pose)          # homing method 35: IK(home_pose)
+
+
+def call(ros, node, service, timeout=5.0):
+    client = node.create_client(Trigger, service)
+    ros.spin_until(client.service_is_ready, timeout, f'{service} available')
+    future = client.call_async(Trigger.Request())
+    ros.spin_until(future.done, timeout, f'{service} answered')
+    return future.result()
+
+
+@pytest.fixture
+def driver(ros):  # noqa: F811 - the fixture from ros_helpers
+    node = ros.device_node(CanDriverNode, **{'can.channel': f'nodetest-{os.getpid()}-{next(_ids)}'})
+    yield node
+    node.shutdown()
+
+
+def setpoint(names, q, node):
+    msg = JointState()
+    msg.header.stamp = node.get_clock().now().to_msg()
+    msg.name = list(names)
+    msg.position = [float(v) for v in q]
+    return msg
+
+
+def test_services_joint_states_and_setpoints(ros, driver):  # noqa: F811
+    probe = ros.node('probe')
+    states = ros.collect(probe, JointState, '/brace/joint_states')
+    diags = ros.collect(probe, DiagnosticArray, '/diagnostics')
+    pub = probe.create_publisher(JointState, '/brace/actuator_setpoint', RELIABLE_10)
+
+    res = call(ros, probe, '/can_driver_node/enable')
+    assert not res.success and 'home' in res.message            # says why
+    res = call(ros, probe, '/can_driver_node/home')
+    assert res.success, res.message
+    res = call(ros, probe, '/can_driver_node/enable')
+    assert res.success and 'OPERATION ENABLED' in res.message, res.message
+
+    ros.spin_until(lambda: len(states) >= 3, 5.0, 'joint_states')
+    js = states[-1]
+    assert list(js.name) == ['a1', 'a2', 'a3']
+    assert np.array(js.position) == pytest.approx(Q_HOME, abs=1e-6)
+    assert len(js.effort) == 3 and all(abs(f) < 50.0 for f in js.effort)     # N
+
+    # a short ramp lifting the ring 0.5 mm (names in another order than the YAML's)
+    ros.wait_matched(pub)
+    delta = _MECH.inverse(_MECH.home_pose + np.array([0.0, 0.0005, 0.0])) - Q_HOME
+    target = Q_HOME + delta
+    for k in range(1, 41):
+        pub.publish(setpoint(['a3', 'a2', 'a1'], (Q_HOME + delta * k / 40)[::-1], probe))
+        ros.spin_for(0.004)
+    ros.spin_until(lambda: driver.accepted + driver.rejected >= 40, 3.0, 'setpoints processed')
+    # on a loaded machine a setpoint may arrive older than command_timeout: held, not used
+    assert driver.rejected == 0 or 'old' in driver.last_rejection
+
+
+    def reached():      # the final setpoint again, freshly stamped, until the drives are there
+        pub.publish(setpoint(['a1', 'a2', 'a3'], target, probe))
+        ros.spin_for(0.005)
+        return np.allclose(states[-1].position, target, atol=2e-6)
+    ros.spin_until(reached, 3.0, 'moved')
+
+    # malformed setpoints: rejected with a reason, nothing sent
+    before = driver.rejected
+    bad = setpoint(['a1', 'a2', 'a3'], [target[0], float('nan'), target[2]], probe)
+    pub.publish(bad)
+    pub.publish(setpoint(['a1', 'a2'], target[:2], probe))
+    ros.spin_until(lambda: driver.rejected >= before + 2, 3.0, 'rejections')
+    assert 'lacks' in driver.last_rejection or 'not finite' in driver.last_rejection
+    ros.spin_for(0.05)
+    assert np.array(states[-1].position) == pytest.approx(target, abs=2e-6)
+    assert not driver.master.supervisor.latched
+
+    ros.spin_until(lambda: any(s.name.endswith('/drive/a2') for d in diags for s in d.status),
+                   3.0, 'per-drive diagnostics')
+    names = {s.name.rsplit('/', 1)[-1] for d in diags for s in d.status}
+    assert {'a1', 'a2', 'a3', 'bus', 'cycle', 'safety'} <= names
+    drive = next(s for d in diags for s in d.status if s.name.endswith('/drive/a2'))
+    keys = {kv.key for kv in drive.values}
+    assert {'nmt', 'state_402', 'last_emcy', 'heartbeat_age_s'} <= keys
+
+    for name in ('halt', 'recover', 'disable'):
+        res = call(ros, probe, f'/can_driver_node/{name}')
+        assert res.success, (name, res.message)
+
+
+def test_platform_wrench_limit_stops_and_reports(ros, driver):  # noqa: F811
+    """SAFETY.md 8: three legs each under the 250 N actuator limit, but together a
+    platform force above safety.max_wrench (150 N): protective stop, in /diagnostics."""
+    probe = ros.node('probe')
+    diags = ros.collect(probe, DiagnosticArray, '/diagnostics')
+    assert call(ros, probe, '/can_driver_node/home').success
+    assert call(ros, probe, '/can_driver_node/enable').success
+    for node_id in (1, 2, 3):
+        driver.sim.faults.set_load_cell(node_id, 120.0)
+    ros.spin_until(lambda: driver.master.supervisor.has(FaultKind.WRENCH_LIMIT), 2.0, 'wrench stop')
+    ros.spin_until(lambda: any(s.name.endswith('/safety') and 'wrench' in s.message
+                               for d in diags for s in d.status), 3.0, 'wrench in diagnostics')
+    res = call(ros, probe, '/can_driver_node/recover')
+    assert not res.success and 'wrench' in res.message                 # cause still there
+    for node_id in (1, 2, 3):
+        driver.sim.faults.set_load_cell(node_id, None)
+    res = call(ros, probe, '/can_driver_node/recover')
+    assert res.success, res.message
+
+
+def test_executable_boots_and_exits_0_on_sigint(tmp_path):
+    """``ros2 run brace_control can_driver_node``: boots the simulated brace, Ctrl-C ends it
+    cleanly (drives disabled, bus closed, exit code 0)."""
+    import signal
+    import subprocess
+    import sys
+    import time
+    cmd = [sys.executable, '-c', 'import sys; from brace_control.nodes.can_driver_node import main; '
+           'sys.exit(main())', '--ros-args', '--params-file', str(LUMBAR_YAML),
+           '-p', f'can.channel:=proc-{os.getpid()}']
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            cwd=str(LUMBAR_YAML.parent.parent))
+    out = []
+    try:
+        deadline = time.monotonic() + 20.0
+        while time.monotonic() < deadline:
+            line = proc.stdout.readline()
+            out.append(line)
+            if 'OPERATIONAL' in line or not line:
+                break
+        assert any('3 drives OPERATIONAL' in line for line in out), ''.join(out)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=10.0) == 0, ''.join(out) + proc.stdout.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+
+
+def test_bad_parameter_exits_1_naming_it(capsys):
+    code = main(['can_driver_node', '--ros-args', '--params-file', str(LUMBAR_YAML),
+                 '-p', 'safety.force_limit:=-5.0'])
+    assert code == 1
+    assert 'safety.force_limit' in capsys.readouterr().err

@@ -1,0 +1,128 @@
+"""Pure parts of the CAN layer: unit scaling, CiA 402 decoding, PDO layouts, timing.
+
+Oracles are the numbers of docs/can.md and CiA 402-2 tables, not the code.
+"""
+import math
+import struct
+import threading
+
+import numpy as np
+import pytest
+
+from brace_control.can.cia402 import (Controlword, State402, controlword_towards, decode_state,
+                                      describe_statusword, emcy_description)
+from brace_control.can.pdo import RPDO1, TPDO1, frame_bits, pdo_mapping_writes
+from brace_control.can.timing import PeriodStats, run_periodic
+from brace_control.can.units import AxisScaling, scaling_from_config
+from brace_control.config import ConfigError, load_device_config
+
+
+@pytest.fixture(scope='module')
+def scaling():
+    return scaling_from_config(load_device_config('config/lumbar_brace.yaml'))
+
+
+def test_linear_scaling_is_8192000_counts_per_metre(scaling):
+    assert scaling.counts_per_unit == pytest.approx(8192 / 0.001)
+    assert scaling.to_counts(0.39) == 3194880
+    assert scaling.to_si(3194880) == pytest.approx(0.39)
+    assert scaling.velocity_to_counts(0.065) == 532480
+
+
+def test_load_cell_newtons_per_count_and_int16_saturation(scaling):
+    assert scaling.force_to_si(12345) == pytest.approx(123.45)
+    assert scaling.force_to_counts(1e6) == 32767
+    # 95 % of 300 N at 0.01 N/count
+    assert scaling.saturation_counts(0.95) == 28500
+
+
+def test_rotary_scaling_counts_per_radian():
+    s = AxisScaling.rotary(encoder_counts_per_rev=4096, gear_ratio=10.0,
+                           newton_metre_per_count=0.001, rated_torque_nm=5.0)
+    assert s.to_counts(math.pi) == 4096 * 10 // 2
+
+
+def test_bad_scaling_names_the_parameter():
+    with pytest.raises(ConfigError, match='screw_lead'):
+        scaling_from_config({'actuator': {'encoder_counts_per_rev': 8192, 'screw_lead': 0.0,
+                                          'load_cell_n_per_count': 0.01,
+                                          'load_cell_rated_force': 300.0}})
+
+
+def test_position_overflow_is_an_error_not_a_wrap(scaling):
+    with pytest.raises(OverflowError):
+        scaling.to_counts(1000.0)
+
+
+@pytest.mark.parametrize('sw, state', [
+    (0x0250, State402.SWITCH_ON_DISABLED),     # CiA 402-2 table 30: xxxx xxxx x1xx 0000
+    (0x0231, State402.READY_TO_SWITCH_ON),
+    (0x0233, State402.SWITCHED_ON),
+    (0x1637, State402.OPERATION_ENABLED),
+    (0x0217, State402.QUICK_STOP_ACTIVE),
+    (0x021F, State402.FAULT_REACTION_ACTIVE),
+    (0x0218, State402.FAULT),
+    (0x0000, State402.NOT_READY_TO_SWITCH_ON),
+])
+def test_statusword_decodes_to_the_cia402_state(sw, state):
+    assert decode_state(sw) is state
+
+
+def test_statusword_description_lists_warning_and_internal_limit():
+    assert describe_statusword(0x08B7) == 'OPERATION ENABLED, warning, internal limit'
+
+
+def test_enable_path_follows_the_cia402_transitions():
+    seq, state = [], State402.SWITCH_ON_DISABLED
+    nxt = {0x06: State402.READY_TO_SWITCH_ON, 0x07: State402.SWITCHED_ON,
+           0x0F: State402.OPERATION_ENABLED}
+    while state is not State402.OPERATION_ENABLED:
+        cw = controlword_towards(state, State402.OPERATION_ENABLED)
+        seq.append(cw)
+        state = nxt[cw]
+    assert seq == [0x06, 0x07, 0x0F]
+    assert controlword_towards(State402.QUICK_STOP_ACTIVE, State402.OPERATION_ENABLED) == 0x00
+    assert controlword_towards(State402.OPERATION_ENABLED, State402.QUICK_STOP_ACTIVE) == 0x02
+    assert controlword_towards(State402.OPERATION_ENABLED, State402.OPERATION_ENABLED) == 0x0F
+
+
+def test_no_command_leaves_fault_but_a_reset():
+    assert controlword_towards(State402.FAULT, State402.OPERATION_ENABLED) is None
+    assert Controlword.FAULT_RESET == 0x80
+
+
+def test_emcy_codes_decode_exact_then_by_class():
+    assert emcy_description(0x8611) == 'following error'
+    assert emcy_description(0x8130) == 'life guard or heartbeat error'
+    assert emcy_description(0x2399) == 'current'
+    assert emcy_description(0x0000) == 'error reset / no error'
+
+
+def test_pdo_layouts_match_docs_can_md():
+    assert RPDO1.size == 6 and TPDO1.size == 8
+    assert RPDO1.pack(0x0F, -2) == struct.pack('<Hi', 0x0F, -2)
+    writes = {(w.index, w.subindex, w.value) for w in pdo_mapping_writes(2)}
+    assert (0x1600, 1, 0x60400010) in writes and (0x1600, 2, 0x607A0020) in writes
+    assert (0x1A00, 3, 0x24010010) in writes and (0x1800, 1, 0x182) in writes
+    assert (0x1401, 1, 0x80000302) in writes          # RPDO2 disabled
+
+
+def test_bus_load_estimate_of_docs_can_md():
+    # SYNC + 3 RPDO1 + 3 TPDO1 per 2 ms: docs/can.md says ~750 bits, ~37 %
+    bits = frame_bits(0) + 3 * frame_bits(6) + 3 * frame_bits(8)
+    assert 650 <= bits <= 820
+    assert 0.3 < bits / 0.002 / 1e6 < 0.42
+
+
+def test_periodic_loop_keeps_absolute_deadlines():
+    stats = PeriodStats(0.002)
+    ticks = []
+    run_periodic(0.002, lambda k, t: ticks.append(t), threading.Event(), stats=stats,
+                 max_cycles=200)
+    rep = stats.report()
+    # absolute deadlines: the ticks stay on the grid t0 + m·period (missed deadlines are
+    # skipped and counted as overruns), whatever the jitter of single cycles
+    phase = (np.array(ticks) - ticks[0]) / 0.002
+    assert np.median(np.abs(phase - np.round(phase))) < 0.1
+    assert round(phase[-1]) == 199 + rep.overruns
+    assert rep.cycles == 200 and rep.p50 < 0.001
