@@ -74,8 +74,8 @@ def test_services_joint_states_and_setpoints(ros, driver):  # noqa: F811
         pub.publish(setpoint(['a3', 'a2', 'a1'], (Q_HOME + delta * k / 40)[::-1], probe))
         ros.spin_for(0.004)
     ros.spin_until(lambda: driver.accepted + driver.rejected >= 40, 3.0, 'setpoints processed')
-    # on a loaded machine a setpoint may arrive older than command_timeout: held, not used
-    assert driver.rejected == 0 or 'old' in driver.last_rejection
+    # a late delivery is not a rejection (staleness is judged by arrival in the master)
+    assert driver.rejected == 0, driver.last_rejection
 
 
     def reached():      # the final setpoint again, freshly stamped, until the drives are there

@@ -7,6 +7,7 @@ matrix measures each reaction time against a stated bound (periods at 500 Hz:
 from __future__ import annotations
 
 import itertools
+import math
 import os
 import time
 
@@ -90,7 +91,7 @@ def test_boot_configures_three_drives_and_enables_them(rig):
         assert drive.read_od(0x6060) == 8                      # CSP
         assert drive.read_od(0x605A) == 6
         assert drive.read_od(0x1017) == 50
-        assert drive.read_od(0x1016, 1) == (127 << 16) | 100
+        assert drive.read_od(0x1016, 1) == (127 << 16) | 200    # 2 x master_heartbeat_ms
         assert drive.read_od(0x607D, 1) == round(0.340 * 8192000)
         assert drive.read_od(0x1A00, 3) == 0x24010010         # load cell in TPDO1
     # homing method 35: the position is IK(home_pose) length in counts
@@ -100,7 +101,7 @@ def test_boot_configures_three_drives_and_enables_them(rig):
 
 def test_sync_and_pdos_on_the_bus_at_the_control_rate(rig):
     """A passive listener on the channel sees SYNC at 500 Hz, one RPDO1 per drive per SYNC
-    and one TPDO1 per drive per SYNC, and the master's heartbeat every 50 ms."""
+    and one TPDO1 per drive per SYNC, and the master's heartbeat every 100 ms."""
     sim, master = rig
     tap = can.Bus(interface='virtual', channel=sim.channel)
     monitor = BusMonitor([1, 2, 3], master.scaling)
@@ -114,7 +115,7 @@ def test_sync_and_pdos_on_the_bus_at_the_control_rate(rig):
     assert 0.8 * 250 <= syncs <= 1.05 * 250
     for rec in monitor.drives.values():
         assert abs(rec.controlwords - syncs) <= 3 and abs(rec.tpdos - syncs) <= 3
-    assert 0.7 * 10 <= hb.count <= 11
+    assert 0.7 * 5 <= hb.count <= 6
 
 
 class _Counter(can.Listener):
@@ -420,13 +421,13 @@ def test_drive_reboot_latches_and_recover_reconfigures_it(rig):
 
 
 def test_drives_stop_on_their_own_when_the_master_dies(rig):
-    """SAFETY.md 2: the drives consume the master's heartbeat (1016h = 100 ms) and apply
-    6007h = 3 (quick stop) when it stops. Bound: 100 ms + one heartbeat period + slack."""
+    """SAFETY.md 2: the drives consume the master's heartbeat (1016h = 200 ms) and apply
+    6007h = 3 (quick stop) when it stops. Bound: 200 ms + one heartbeat period + slack."""
     sim, master = rig
     master._stop.set()                      # the SYNC thread (and the heartbeat) stops dead
     t = wait_for(lambda: all(sim.drive(i).state.name == 'QUICK_STOP_ACTIVE' for i in (1, 2, 3)),
-                 0.15 + SLACK, 'drives in QUICK STOP ACTIVE')
-    assert t <= 0.15 + SLACK
+                 0.3 + SLACK, 'drives in QUICK STOP ACTIVE')
+    assert t <= 0.3 + SLACK
 
 
 def test_boot_finds_drives_that_booted_earlier_without_heartbeat():
@@ -448,3 +449,80 @@ def test_boot_finds_drives_that_booted_earlier_without_heartbeat():
     finally:
         master.shutdown()
         sim.shutdown()
+
+
+# ---------------------------------------------------------------------------- stamped streams
+
+class _RpdoTargets(can.Listener):
+    """Target positions (counts) of one drive's RPDO1 frames: controlword U16 + target I32."""
+
+    def __init__(self, node_id):
+        self.cob_id = 0x200 + node_id
+        self.targets = []
+
+    def on_message_received(self, msg):
+        if msg.arbitration_id == self.cob_id and len(msg.data) >= 6:
+            self.targets.append(int.from_bytes(msg.data[2:6], 'little', signed=True))
+
+
+def test_bunched_and_delayed_stamped_setpoints_are_judged_by_their_stamps(rig):
+    """A 200 Hz stream at 30 mm/s whose messages arrive bunched (two at once after a
+    10 ms pause, the way a loaded executor delivers them): by arrival it would look like
+    0.3 mm in 0 ms; by its stamps it is 0.15 mm per 5 ms, well within
+    v_max·dt + margin. No protective stop; the drives follow."""
+    sim, master = rig
+    q0 = master.feedback().position.copy()
+    direction = pose_delta([0.0, 0.001, 0.0]) / np.linalg.norm(pose_delta([0.0, 0.001, 0.0]))
+    speed = 0.03                                    # m/s along the combined direction
+    t_stamp = 100.0                                  # the sender's clock: any origin
+    for k in range(1, 41):
+        q = q0 + direction * speed * 0.005 * k
+        master.set_targets(q, stamp=t_stamp + 0.005 * k)
+        if k % 2 == 0:
+            time.sleep(0.010)                        # two per 10 ms, back to back
+    assert not master.supervisor.latched, master.supervisor.summary()
+    wait_for(lambda: np.allclose(master.feedback().position, q, atol=2e-6), 0.5, 'followed')
+
+
+def test_stamped_stream_faster_than_v_max_latches_a_step_limit(rig):
+    """Stamps 5 ms apart, steps of 1 mm: 200 mm/s > v_max = 65 mm/s (+ 0.5 mm margin)."""
+    sim, master = rig
+    q0 = master.feedback().position.copy()
+    step = np.array([0.0, 0.001, 0.0])
+    n = master.status().accepted_setpoints
+    master.set_targets(q0, stamp=10.0)
+    wait_for(lambda: master.status().accepted_setpoints > n, 0.002 + SLACK, 'first setpoint applied')
+    master.set_targets(q0 + step, stamp=10.005)
+    wait_for(_latched(master, FaultKind.STEP_LIMIT, 'a2'), 0.002 + SLACK, 'step limit')
+
+
+def test_after_a_hold_the_rpdo_target_ramps_at_v_max_per_period(rig):
+    """The stream stops (hold), then resumes 2 mm further on with stamps that say 0.1 s
+    passed (40 mm/s: allowed). The drives must not see a 2 mm target jump in one SYNC:
+    on the bus, RPDO1 targets change by at most v_max·period = 0.13 mm (1065 counts)."""
+    sim, master = rig
+    tap = can.Bus(interface='virtual', channel=sim.channel)
+    rpdo = _RpdoTargets(2)
+    notifier = can.Notifier(tap, [rpdo])
+    try:
+        q0 = master.feedback().position.copy()
+        master.set_targets(q0, stamp=50.0)
+        wait_for(lambda: master.status().stale_setpoint_holds >= 1, 0.5, 'hold')
+        q1 = q0 + pose_delta([0.0, 0.002, 0.0])
+        master.set_targets(q1, stamp=50.1)
+        # keep the stream fresh at the new place until the drives got there
+        t0 = time.perf_counter()
+        k = 0
+        while not np.allclose(master.feedback().position, q1, atol=2e-6):
+            k += 1
+            master.set_targets(q1, stamp=50.1 + 0.005 * k)
+            time.sleep(0.005)
+            assert time.perf_counter() - t0 < 2.0, 'drives did not reach the resumed target'
+    finally:
+        notifier.stop()
+        tap.shutdown()
+    assert not master.supervisor.latched, master.supervisor.summary()
+    steps = np.abs(np.diff(rpdo.targets))
+    v_max_counts = 0.065 * 0.002 * 8192 / 0.001      # YAML: 65 mm/s, 500 Hz, 8192 counts/mm
+    assert steps.max() <= math.ceil(v_max_counts)
+    assert abs(rpdo.targets[-1] - round(q1[1] * 8192 / 0.001)) <= 1

@@ -188,8 +188,9 @@ def test_first_goal_starts_from_a_fresh_measured_pose_and_tracking_error_aborts(
     np.testing.assert_allclose(pose_of(setpoints[0]), measured, atol=1e-6)
     # the brace does not follow (the measured pose stays put): beyond 5 mm of actuator
     # length (paper eq. 3) from every setpoint of the last tracking_latency -> aborted
-    ros.spin_until(lambda: len(setpoints) > 40 and min(
-        np.abs(lumbar_ik(pose_of(m)) - lumbar_ik(measured)).max() for m in setpoints[-40:]) > 0.006,
+    window = int(node.runner.tracking_latency * 200.0) + 10      # setpoints at 200 Hz, + margin
+    ros.spin_until(lambda: len(setpoints) > window and min(
+        np.abs(lumbar_ik(pose_of(m)) - lumbar_ik(measured)).max() for m in setpoints[-window:]) > 0.006,
         timeout=10.0, what='setpoints 6 mm of actuator length away')
     measured_pub.publish(pose_msg(measured, frame_id=FRAME))
     ros.spin_until(lambda: ('1', 'aborted') in states(status), what='aborted status')

@@ -226,6 +226,7 @@ class MasterStatus:
     warnings: tuple[str, ...]
     stale_setpoint_holds: int
     homed: bool
+    accepted_setpoints: int = 0        # setpoints passed the step limit and became goals
 
 
 @dataclass(frozen=True)
@@ -245,6 +246,7 @@ class _Setpoint:
     position: np.ndarray
     time: float              # perf_counter at reception
     seq: int
+    stamp: float | None = None   # s, the sender's sample instant (header stamp), if any
 
 
 @dataclass
@@ -267,6 +269,8 @@ class _Drive:
     emcy: tuple[int, int, float] | None = None     # code, register, monotonic
     emcy_nonzero_time: float = -math.inf
     target: int = 0                        # counts, sent in RPDO1
+    goal: int | None = None                # counts of the last accepted setpoint (target ramps to it)
+    recent: deque = field(default_factory=lambda: deque(maxlen=16))  # Samples, by SYNC
     reset_phase: bool = False
     flagged: bool = False                  # warning / internal-limit bit seen last sample
 
@@ -291,6 +295,8 @@ class BraceMaster:
         self.config = config
         self.scaling = config.scaling
         self.limits = config.limits
+        # per-cycle bound on the RPDO target's change (counts): v_max for one SYNC period
+        self._ramp_counts = max(1, math.ceil(self.limits.v_max * config.period * self.scaling.counts_per_unit))
         self.supervisor = Supervisor(on_fault=self._on_fault)
         self.stats = PeriodStats(config.period)
         self._own_bus = bus is None
@@ -314,8 +320,10 @@ class BraceMaster:
         self._setpoint_seq = 0
         self._last_sp_seq = 0
         self._last_sp_time = -math.inf
+        self._last_sp_stamp: float | None = None
         self._was_fresh = False
         self.stale_setpoint_holds = 0
+        self.accepted_setpoints = 0
         self.homed = False
         self._recover_time = -math.inf
         # SYNC bookkeeping
@@ -540,6 +548,7 @@ class BraceMaster:
             index, t = self._answered_sync(timestamp)
             p = to_si(pos)
             d.sample = Sample(sw, p, force_si(load), load, index, t)
+            d.recent.append(d.sample)
             d.rx_time = time.perf_counter()
             d.samples += 1
             self._tpdo_total += 1
@@ -742,6 +751,7 @@ class BraceMaster:
             cw = self._controlword(d, state, stopped)
             if not (self._tracking and not stopped and state is State402.OPERATION_ENABLED):
                 d.target = self._actual_counts(d)     # hold where it is; enable without a jump
+                d.goal = None
             msg = can.Message(arbitration_id=d.rpdo_id, data=RPDO1.pack(cw, d.target),
                               is_extended_id=False)
             self._send(msg)
@@ -833,33 +843,61 @@ class BraceMaster:
             d.checked = s
 
     def _apply_setpoint(self, t_wake: float) -> None:
-        """Latest setpoint → targets, step-limited (SAFETY 7); stale → hold and report (SAFETY 1)."""
+        """Latest setpoint → goals, step-limited (SAFETY 7); stale → hold and report (SAFETY 1).
+
+        Staleness is by arrival: no setpoint received for ``command_timeout`` (the stream
+        stopped), not by the age of its stamp (that is transport latency, not staleness).
+        The step limit compares a setpoint with the previous accepted one over the time
+        between their stamps (the sender's sample instants), so bunched or delayed
+        deliveries do not look like fast motion; unstamped setpoints use the time between
+        arrivals. Each cycle then moves the RPDO target towards the goal by at most
+        ``v_max · period``: a CSP drive never sees a target jump, also after a hold.
+        """
         sp = self._setpoint
         limits = self.limits
         if sp is None or t_wake - sp.time > limits.command_timeout:
             if self._was_fresh:
                 self._was_fresh = False
                 self.stale_setpoint_holds += 1
-                self.supervisor.warn('setpoint', 'setpoints stale (older than safety.command_timeout '
+                self.supervisor.warn('setpoint', 'setpoints stale (none for safety.command_timeout '
                                      f'= {limits.command_timeout * 1e3:.0f} ms): holding position')
             return
-        if sp.seq == self._last_sp_seq:
-            return
-        dt = min(max(sp.time - self._last_sp_time, self.config.period), limits.command_timeout)
+        if sp.seq != self._last_sp_seq:
+            self._accept_setpoint(sp)
+            if self.supervisor.latched:
+                return
+        step = self._ramp_counts
+        for d in self._drives:
+            if d.goal is not None and d.goal != d.target:
+                d.target += max(-step, min(step, d.goal - d.target))
+
+    def _accept_setpoint(self, sp: _Setpoint) -> None:
+        limits = self.limits
+        if sp.stamp is not None and self._last_sp_stamp is not None:
+            dt = sp.stamp - self._last_sp_stamp
+            if dt <= 0.0:                     # out of order or repeated: not a newer command
+                self._last_sp_seq = sp.seq
+                return
+            dt = max(dt, self.config.period)
+        else:
+            dt = min(max(sp.time - self._last_sp_time, self.config.period), limits.command_timeout)
         if not self._was_fresh:
             self.supervisor.unwarn('setpoint')
             self._was_fresh = True
         for d in self._drives:
-            cause = check_step(d.name, self.scaling.to_si(d.target), float(sp.position[d.index]),
+            current = d.goal if d.goal is not None else d.target
+            cause = check_step(d.name, self.scaling.to_si(current), float(sp.position[d.index]),
                                dt, limits)
             if cause:
                 self.supervisor.report(FaultKind.STEP_LIMIT, f'setpoint rejected: {cause}',
                                        drive=d.name, still_present=self._step_condition)
                 return
         for d in self._drives:
-            d.target = self.scaling.to_counts(float(sp.position[d.index]))
+            d.goal = self.scaling.to_counts(float(sp.position[d.index]))
         self._last_sp_seq = sp.seq
         self._last_sp_time = sp.time
+        self._last_sp_stamp = sp.stamp
+        self.accepted_setpoints += 1
 
     def _update_rates(self, now: float) -> None:
         t0, f0, b0 = self._rate_mark
@@ -871,8 +909,11 @@ class BraceMaster:
 
     # ------------------------------------------------------------------ API
 
-    def set_targets(self, positions: Sequence[float]) -> None:
+    def set_targets(self, positions: Sequence[float], *, stamp: float | None = None) -> None:
         """The latest setpoint (m per actuator, actuator order); applied on the next SYNC.
+
+        ``stamp`` (s, any clock the sender keeps) is the setpoint's sample instant, e.g. its
+        message header stamp: the step limit then uses the time between stamps.
 
         Held only while fresh (``safety.command_timeout``); the cycle rejects it, latching
         a STEP_LIMIT fault, if it steps further than ``v_max·dt + margin`` (SAFETY 7).
@@ -892,17 +933,30 @@ class BraceMaster:
                 raise ValueError(f'target of {self.names[i]} = {v:.5f} m is outside the stroke '
                                  f'{lo:.3f}–{hi:.3f} m')
         self._setpoint_seq += 1
-        self._setpoint = _Setpoint(arr.copy(), time.perf_counter(), self._setpoint_seq)
+        self._setpoint = _Setpoint(arr.copy(), time.perf_counter(), self._setpoint_seq,
+                                   None if stamp is None else float(stamp))
 
     def feedback(self) -> Feedback:
-        """Latest positions (m), velocities (m/s), load-cell forces (N) in actuator order."""
-        samples = [d.sample for d in self._drives]
+        """Positions (m), velocities (m/s), load-cell forces (N) in actuator order.
+
+        One consistent snapshot: every drive's TPDO answering the same SYNC (the newest
+        SYNC all drives answered), so a pose computed from it mixes no two instants (near
+        a singularity a few um between cycles are mm of pose). Falls back to each drive's
+        latest sample when no common SYNC is held (a drive silent: supervision reports it).
+        """
+        drives = self._drives
+        recent = [tuple(d.recent) for d in drives]       # C-level copies: the rx thread appends
+        samples = [d.sample for d in drives]
+        common = set.intersection(*({s.sync_index for s in r} for r in recent)) if recent and all(recent) else set()
+        if common:
+            k = max(common)
+            samples = [next(s for s in reversed(r) if s.sync_index == k) for r in recent]
         valid = bool(samples) and all(s is not None for s in samples)
         pos = np.array([s.position if s else math.nan for s in samples])
         force = np.array([s.force if s else math.nan for s in samples])
-        vel = np.array([d.velocity for d in self._drives])
+        vel = np.array([d.velocity for d in drives])
         stamp = max((s.time for s in samples if s), default=0.0)
-        return Feedback(pos, vel, force, tuple(d.state for d in self._drives), stamp, valid)
+        return Feedback(pos, vel, force, tuple(d.state for d in drives), stamp, valid)
 
     def enable(self, *, timeout: float | None = None) -> None:
         """All drives to OPERATION ENABLED in CSP, targets = actual positions first (no jump).
@@ -920,6 +974,7 @@ class BraceMaster:
             if self.state is MasterState.ENABLED and self._all_in(State402.OPERATION_ENABLED):
                 return
             self._setpoint = None
+            self._last_sp_stamp = None
             self._was_fresh = False
             self._desired = State402.OPERATION_ENABLED
             self._wait(lambda: self._all_in(State402.OPERATION_ENABLED), timeout=timeout,
@@ -1051,6 +1106,7 @@ class BraceMaster:
                     d.checked = None
                     d.history.clear()
                     d.target = self._actual_counts(d)
+                    d.goal = None
                 self._sdo_all(0x6060, 0, 'b', int(OpMode.CYCLIC_SYNC_POSITION))
                 self.homed = True
             except BaseException:
@@ -1094,7 +1150,7 @@ class BraceMaster:
         bus = BusStatus(frames, load, self._bus_error_state, self.error_frames, self.send_failures)
         return MasterStatus(self.state, tuple(drives), bus, self.stats.report(),
                             self.supervisor.faults, tuple(w.message for w in self.supervisor.warnings),
-                            self.stale_setpoint_holds, self.homed)
+                            self.stale_setpoint_holds, self.homed, self.accepted_setpoints)
 
     def shutdown(self, *, timeout: float = 0.5) -> None:
         """Disable the drives, NMT pre-operational, stop SYNC, close the bus. Idempotent."""

@@ -4,9 +4,10 @@
 
 * subscribes ``/brace/actuator_setpoint`` (``sensor_msgs/JointState``, by actuator name,
   ``position`` in m): the latest setpoint goes to the drives on the next SYNC. Malformed
-  input (unknown / missing names, wrong lengths, NaN, outside the stroke, older than
-  ``safety.command_timeout`` by its stamp) is rejected with a throttled error; nothing
-  is sent and the drives hold (SAFETY.md 1, 5, 6);
+  input (unknown / missing names, wrong lengths, NaN, outside the stroke) is rejected
+  with a throttled error; nothing is sent and the drives hold (SAFETY.md 1, 5, 6). No
+  setpoint for ``safety.command_timeout``: hold and report; a step beyond
+  ``v_max · (time between stamps) + margin``: protective stop (SAFETY.md 7);
 * publishes ``/brace/joint_states`` (position m, velocity m/s, effort = load-cell force
   N) at ``can.joint_state_rate_hz``, once homed (incremental encoders read 0 before);
 * services ``~/enable``, ``~/disable``, ``~/halt``, ``~/recover``, ``~/home``
@@ -103,7 +104,6 @@ class CanDriverNode(Node):
         self._last_reject_log = -math.inf
         self._pose_hint = None if self.mechanism is None else np.asarray(self.mechanism.home_pose, float)
         self._wrench_limit = np.asarray(self.cfg['safety']['max_wrench'], float)
-        self._command_timeout_ns = int(float(self.cfg['safety']['command_timeout']) * 1e9)
         self._last_faults: tuple = ()
         # services may block up to ~1 s (402 transitions): their own group, so the
         # setpoint stream and joint_states never wait on them on a multi-threaded executor
@@ -194,15 +194,12 @@ class CanDriverNode(Node):
         except MalformedMessage as exc:
             self._reject(str(exc))
             return
+        # The stamp is the setpoint's sample instant: the master's step limit uses the time
+        # between stamps. Staleness is judged by arrival in the master (a stream that
+        # stopped), not by the stamp's age, which is transport latency.
         stamp = stamp_to_ns(msg.header.stamp)
-        if stamp:
-            age = self.get_clock().now().nanoseconds - stamp
-            if age > self._command_timeout_ns:
-                self._reject(f'setpoint is {age * 1e-6:.1f} ms old (safety.command_timeout '
-                             f'{self._command_timeout_ns * 1e-6:.0f} ms)')
-                return
         try:
-            self.master.set_targets(q)
+            self.master.set_targets(q, stamp=stamp * 1e-9 if stamp else None)
         except ValueError as exc:
             self._reject(str(exc))
             return
@@ -357,6 +354,7 @@ class CanDriverNode(Node):
                faults=' | '.join(f.describe() for f in st.faults) or 'none',
                warnings=' | '.join(st.warnings) or 'none',
                stale_setpoint_holds=st.stale_setpoint_holds,
+               accepted_setpoints=st.accepted_setpoints,
                setpoints_accepted=self.accepted, setpoints_rejected=self.rejected,
                last_rejection=self.last_rejection or 'none')
         msg = DiagnosticArray()

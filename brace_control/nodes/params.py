@@ -73,7 +73,7 @@ SCHEMA: dict[str, Param] = {
     'can.boot_timeout': Param(3.0, 'wait for boot-up / first heartbeat (s)', (0.05, 60.0), True),
     'can.drive_heartbeat_ms': Param(50, 'drive heartbeat producer time 1017h (ms)', (1, 10000), True),
     'can.heartbeat_consumer_ms': Param(150, "master's timeout on a drive's heartbeat (ms)", (1, 30000), True),
-    'can.master_heartbeat_ms': Param(50, "master's heartbeat producer time (ms)", (1, 10000), True),
+    'can.master_heartbeat_ms': Param(100, "master's heartbeat producer time (ms)", (1, 10000), True),
     'can.master_node_id': Param(127, "master's node id", (1, 127), True),
     'can.homing_method': Param(35, 'CiA 402 homing method 6098h', (-128, 127), True),
     'can.frame_log': Param('', 'python-can log of the bus (.asc/.blf/.log), empty = none', read_only=True),
@@ -84,10 +84,10 @@ SCHEMA: dict[str, Param] = {
     'can.gil_switch_interval_us': Param(200, "driver process: Python's GIL switch interval (us), "
                                         "0 = keep Python's 5000 us", (0, 100000), True),
     # safety (SAFETY.md): read-only at run time
-    'safety.command_timeout': Param(0.015, 'setpoint staleness -> hold (s)', (0.001, 5.0), True),
+    'safety.command_timeout': Param(0.015, 'no setpoint received for this long -> hold (s)', (0.001, 5.0), True),
     'safety.following_error_window': Param(0.003, 'following error window 6065h (m or rad)', (1e-6, 1.0), True),
     'safety.path_tolerance': Param(0.005, 'tracking error in actuator coordinates -> abort and hold (m or rad)', (1e-6, 1.0), True),
-    'safety.tracking_latency': Param(0.1, 'setpoint-to-measurement delay allowed by the tracking check (s)', (0.0, 5.0), True),
+    'safety.tracking_latency': Param(0.25, 'setpoint-to-measurement delay allowed by the tracking check (s)', (0.0, 5.0), True),
     'safety.step_margin': Param(0.0005, 'margin on |dq| per cycle (m or rad)', (0.0, 1.0), True),
     'safety.force_limit': Param(250.0, 'load-cell force / torque -> protective stop', (0.0, 1e5), True),
     'safety.saturation_fraction': Param(0.95, 'load-cell saturation threshold (of full scale)', (0.5, 1.0), True),

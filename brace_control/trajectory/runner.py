@@ -118,7 +118,7 @@ class TrajectoryRunner:
     def __init__(self, mech: 'Mechanism', limits: Limits, *, profile: Profile | str,
                  fitts: FittsLaw, fitts_axes: tuple[int, ...] | None = None,
                  lookahead: float = 0.0, path_tolerance: float | None = None,
-                 tracking_latency: float = 0.1) -> None:
+                 tracking_latency: float = 0.25) -> None:
         self.mech = mech
         self.limits = limits
         self.profile = Profile(profile)
