@@ -26,8 +26,9 @@ demo: venv
 test: venv
 	$(PY) -m pytest -q
 
+# every benchmark script; numbers and the commands that made them: bench/RESULTS.md
 bench: venv
-	$(PY) -m bench
+	for b in bench/bench_*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
 
 colcon: venv
 	$(VENV)/bin/colcon build --base-paths . --build-base build --install-base install
