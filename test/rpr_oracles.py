@@ -1,4 +1,5 @@
-"""Independent 3-RPR forward-kinematics oracle shared by test_rpr3.py and test_rrr3.py.
+"""Independent 3-RPR oracles shared by the tests: the lumbar paper's eq. 3, and a
+forward-kinematics root count (test_rpr3.py, test_rrr3.py).
 
 Written out from the loop equations, not from the code under test: ``g(theta)`` is legs
 2 and 3 minus leg 1 solved for ``B1 - A1`` by Cramer's rule, leg 1 times ``det^2``; its
@@ -38,3 +39,17 @@ def fk_thetas_by_sampling(base, plat, lengths, n: int = 200_001) -> list[float]:
     idx = np.flatnonzero(np.sign(g[1:]) != np.sign(g[:-1]))
     return [brentq(lambda t: fk_residual(base, plat, lengths, np.array([t]))[0], th[i], th[i + 1], xtol=1e-14)
             for i in idx]
+
+
+#: the lumbar brace (seed 001): r1 = 217 mm, r2 = 195 mm
+R1, R2 = 0.217, 0.195
+
+
+def lumbar_eq3(pose) -> np.ndarray:
+    """Paper eq. 3: the lumbar brace's actuator lengths l1, l2, l3 of pose (x, y, theta)."""
+    x, y, t = pose
+    return np.array([
+        math.sqrt((x - R2 * math.cos(t) + R1) ** 2 + (y - R2 * math.sin(t)) ** 2),
+        math.sqrt(x ** 2 + y ** 2),
+        math.sqrt((x + R2 * math.cos(t) - R1) ** 2 + (y + R2 * math.sin(t)) ** 2),
+    ])

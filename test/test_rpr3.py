@@ -12,11 +12,10 @@ import math
 
 import numpy as np
 import pytest
-from rpr_oracles import fk_residual, fk_thetas_by_sampling
+from rpr_oracles import R1, R2, fk_residual, fk_thetas_by_sampling, lumbar_eq3
 
 from brace_control.mechanisms import Mechanism, Rpr3, SingularPose, UnreachablePose, load_mechanism
 
-R1, R2 = 0.217, 0.195            # paper: r1 = 217 mm, r2 = 195 mm
 LO, HI = 0.340, 0.440            # installed length range (m)
 
 # A general 3-RPR with six real assembly modes (found by a search script over rounded
@@ -38,14 +37,6 @@ def six() -> Rpr3:
 
 
 # ---------------------------------------------------------------- independent oracles
-def paper_eq3(x: float, y: float, t: float) -> np.ndarray:
-    """Paper eq. 3, written out."""
-    return np.array([
-        math.sqrt((x - R2 * math.cos(t) + R1) ** 2 + (y - R2 * math.sin(t)) ** 2),
-        math.sqrt(x ** 2 + y ** 2),
-        math.sqrt((x + R2 * math.cos(t) - R1) ** 2 + (y + R2 * math.sin(t)) ** 2)])
-
-
 def lengths_general(base, plat, pose) -> np.ndarray:
     x, y, t = pose
     c, s = math.cos(t), math.sin(t)
@@ -69,7 +60,7 @@ def test_inverse_matches_paper_eq3(brace):
     rng = np.random.default_rng(3)
     for _ in range(200):
         pose = (rng.uniform(-0.05, 0.05), rng.uniform(0.36, 0.42), rng.uniform(-0.5, 0.5))
-        expected = paper_eq3(*pose)
+        expected = lumbar_eq3(pose)
         if np.all((expected >= LO) & (expected <= HI)):
             np.testing.assert_allclose(brace.inverse(pose), expected, atol=1e-15, rtol=0)
         np.testing.assert_allclose(brace.inverse_batch(np.array([pose]))[0], expected, atol=1e-15, rtol=0)
@@ -81,7 +72,7 @@ def test_inverse_batch_and_reachable_mask_agree_with_scalar_inverse(brace):
     q = brace.inverse_batch(poses)
     mask = brace.reachable_batch(poses)
     for pose, qi, ok in zip(poses, q, mask):
-        np.testing.assert_allclose(qi, paper_eq3(*pose), atol=1e-15)
+        np.testing.assert_allclose(qi, lumbar_eq3(pose), atol=1e-15)
         assert ok == bool(np.all((qi >= LO) & (qi <= HI)))
         if ok:
             np.testing.assert_allclose(brace.inverse(pose), qi, atol=1e-15)
@@ -98,7 +89,7 @@ def test_unreachable_pose_names_actuator_length_and_stroke(brace):
     err = info.value
     assert isinstance(err, ValueError)
     assert err.actuator == 'a1'        # a1 is checked first and is also too long (0.5005 m)
-    assert err.value == pytest.approx(paper_eq3(*pose)[0])
+    assert err.value == pytest.approx(lumbar_eq3(pose)[0])
     assert err.limits == (pytest.approx(LO), pytest.approx(HI))
     msg = str(err)
     assert 'a1' in msg and '0.5005' in msg and '0.3400' in msg and '0.4400' in msg
@@ -123,7 +114,7 @@ def paper_fk_candidates(l1: float, l2: float, l3: float) -> list[tuple[float, fl
         disc = max(disc, 0.0)
         for x in ((a * b + math.sqrt(disc)) / (b ** 2 + c ** 2), (a * b - math.sqrt(disc)) / (b ** 2 + c ** 2)):
             for y in (math.sqrt(l2 ** 2 - x ** 2), -math.sqrt(l2 ** 2 - x ** 2)):            # eq. 7
-                if np.max(np.abs(paper_eq3(x, y, t) - [l1, l2, l3])) < 1e-9:
+                if np.max(np.abs(lumbar_eq3((x, y, t)) - [l1, l2, l3])) < 1e-9:
                     out.append((x, y, t))
     return out
 
@@ -140,7 +131,7 @@ def test_brace_four_solutions_when_l1_lt_l2_lt_l3(brace):
     for e in expected:
         assert sum(same_pose(s, e, 1e-9) for s in sols) == 1
     for s in sols:
-        np.testing.assert_allclose(paper_eq3(*s), q, atol=1e-12)
+        np.testing.assert_allclose(lumbar_eq3(s), q, atol=1e-12)
         assert -math.pi < s[2] <= math.pi
     # the paper pairs theta >= 0 with y >= 0 (eqs. 10-11) and theta < 0 with y < 0
     # (eqs. 12-13); here every theta has one solution of each sign of y, so the pairing
@@ -150,7 +141,7 @@ def test_brace_four_solutions_when_l1_lt_l2_lt_l3(brace):
     assert sum(1 for s in sols if s[1] > 0) == 2
     # a concrete counterexample to the pairing, at the brace's home (theta = 5 deg):
     # the second y > 0 mode has theta < 0
-    home = brace.forward(paper_eq3(0.0, 0.39, math.radians(5)))
+    home = brace.forward(lumbar_eq3((0.0, 0.39, math.radians(5))))
     assert any(s[1] > 0 and s[2] < 0 for s in home)
 
 
@@ -165,7 +156,7 @@ def test_brace_l1_lt_l2_lt_l3_is_not_always_four_solutions(brace):
     for e in expected:
         assert any(same_pose(s, e, 1e-6) for s in sols)
     for s in sols:
-        np.testing.assert_allclose(paper_eq3(*s), q, atol=1e-9)
+        np.testing.assert_allclose(lumbar_eq3(s), q, atol=1e-9)
     assert brace.forward((0.345, 0.400, 0.435)) == [] == paper_fk_candidates(0.345, 0.400, 0.435)
 
 
@@ -179,21 +170,21 @@ def test_brace_round_trip_on_ten_thousand_workspace_poses(brace):
     assert len(poses) == 10_000
     worst = 0.0
     for pose in poses:
-        q = paper_eq3(*pose)
+        q = lumbar_eq3(pose)
         sols = brace.forward(q)
         assert 1 <= len(sols) <= 4
         assert any(same_pose(s, pose, 1e-7) for s in sols), (pose, sols)
         for s in sols:
-            worst = max(worst, float(np.max(np.abs(paper_eq3(*s) - q))))
+            worst = max(worst, float(np.max(np.abs(lumbar_eq3(s) - q))))
     assert worst <= 1e-9
 
 
 def test_brace_singular_theta_zero_still_solved(brace):
-    q = paper_eq3(0.01, 0.39, 0.0)
+    q = lumbar_eq3((0.01, 0.39, 0.0))
     sols = brace.forward(q)
     assert len(sols) == 2
     assert any(same_pose(s, (0.01, 0.39, 0.0), 1e-9) for s in sols)
-    assert all(np.max(np.abs(paper_eq3(*s) - q)) < 1e-9 for s in sols)
+    assert all(np.max(np.abs(lumbar_eq3(s) - q)) < 1e-9 for s in sols)
 
 
 def test_brace_no_solution_returns_empty_and_forward_nearest_raises(brace):
@@ -206,7 +197,7 @@ def test_brace_no_solution_returns_empty_and_forward_nearest_raises(brace):
 
 def test_forward_nearest_follows_the_hint_branch(brace):
     pose = np.array([0.02, 0.40, math.radians(8)])
-    q = paper_eq3(*pose)
+    q = lumbar_eq3(pose)
     np.testing.assert_allclose(brace.forward_nearest(q, pose + [0.003, -0.002, 0.01]), pose, atol=1e-12)
     mirror = np.array([pose[0], -pose[1], -pose[2]])
     np.testing.assert_allclose(brace.forward_nearest(q, mirror), mirror, atol=1e-12)
@@ -214,7 +205,7 @@ def test_forward_nearest_follows_the_hint_branch(brace):
     prev = pose
     for k in range(1, 30):
         true = pose + k * np.array([0.001, -0.0005, -0.01])
-        got = brace.forward_nearest(paper_eq3(*true), prev)
+        got = brace.forward_nearest(lumbar_eq3(true), prev)
         np.testing.assert_allclose(got, true, atol=1e-10)
         prev = got
 
@@ -301,7 +292,7 @@ def test_general_forward_nearest_picks_each_mode(six):
 @pytest.mark.parametrize('pose', [(0.0, 0.39, 0.2), (0.03, 0.37, -0.4), (-0.05, 0.41, 0.5)])
 def test_jacobian_matches_central_finite_differences(brace, pose):
     h = 1e-6
-    fd = np.column_stack([(paper_eq3(*(np.add(pose, h * e))) - paper_eq3(*(np.subtract(pose, h * e)))) / (2 * h)
+    fd = np.column_stack([(lumbar_eq3(np.add(pose, h * e)) - lumbar_eq3(np.subtract(pose, h * e))) / (2 * h)
                           for e in np.eye(3)])
     np.testing.assert_allclose(brace.jacobian(pose), fd, atol=1e-8)
 
@@ -395,7 +386,7 @@ BAD = [[np.nan, 0.39, 0.0], [0.0, np.inf, 0.0], [0.0, 0.39], [0.0, 0.39, 0.0, 1.
                                     'forward', 'wrench_pose', 'wrench_forces', 'nearest_q', 'nearest_hint'])
 def test_malformed_input_raises_value_error_with_message(brace, bad, method):
     good = [0.0, 0.39, 0.2]
-    q = list(paper_eq3(*good))
+    q = list(lumbar_eq3(good))
     calls = {
         'inverse': lambda: brace.inverse(bad),
         'jacobian': lambda: brace.jacobian(bad),
@@ -457,7 +448,7 @@ def test_load_mechanism_lumbar_brace():
     mech = load_mechanism('config/lumbar_brace.yaml')
     assert isinstance(mech, Rpr3) and mech.architecture == 'aligned'
     pose = (0.01, 0.395, math.radians(12))
-    np.testing.assert_allclose(mech.inverse(pose), paper_eq3(*pose), atol=1e-15)
+    np.testing.assert_allclose(mech.inverse(pose), lumbar_eq3(pose), atol=1e-15)
 
 
 # ---------------------------------------------------------------- property-based round trip

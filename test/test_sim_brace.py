@@ -23,22 +23,12 @@ import yaml
 
 from brace_control.config import DeviceConfig, load_device_config
 from brace_control.sim import SimulatedBrace
+from rpr_oracles import R1, R2, lumbar_eq3
 
 ROOT = Path(__file__).resolve().parent.parent
 CFG = ROOT / 'config' / 'lumbar_brace.yaml'
 CPM = 8192 / 0.001
-R1, R2 = 0.217, 0.195
 _ids = itertools.count()
-
-
-def eq3(pose: np.ndarray) -> np.ndarray:
-    """Paper eq. 3: the actuator lengths l1, l2, l3 of pose (x, y, theta)."""
-    x, y, t = pose
-    return np.array([
-        math.sqrt((x - R2 * math.cos(t) + R1) ** 2 + (y - R2 * math.sin(t)) ** 2),
-        math.sqrt(x ** 2 + y ** 2),
-        math.sqrt((x + R2 * math.cos(t) - R1) ** 2 + (y + R2 * math.sin(t)) ** 2),
-    ])
 
 
 def jacobian_fd(pose: np.ndarray, h: float = 1e-7) -> np.ndarray:
@@ -47,7 +37,7 @@ def jacobian_fd(pose: np.ndarray, h: float = 1e-7) -> np.ndarray:
     for k in range(3):
         e = np.zeros(3)
         e[k] = h
-        cols.append((eq3(pose + e) - eq3(pose - e)) / (2 * h))
+        cols.append((lumbar_eq3(pose + e) - lumbar_eq3(pose - e)) / (2 * h))
     return np.column_stack(cols)
 
 
@@ -136,13 +126,13 @@ def enable_all(master: Bus, sim: SimulatedBrace) -> list[int]:
 def test_power_up_lengths_are_eq3_of_home_pose_and_encoders_read_zero(rig) -> None:
     master, sim = rig
     home = np.array(yaml_params()['mechanism']['home_pose'])
-    np.testing.assert_allclose(sim.truth().lengths, eq3(home), atol=1e-12)
+    np.testing.assert_allclose(sim.truth().lengths, lumbar_eq3(home), atol=1e-12)
     for nid in (1, 2, 3):
         master.sdo_write(nid, 0x1006, 0, 'I', 2000)
     master.send(0, b'\x01\x00')
     assert [pos for _, pos, _ in master.sync(2)] == [0, 0, 0]   # incremental: not homed
     positions = enable_all(master, sim)
-    assert positions == [round(q * CPM) for q in eq3(home)]     # homing 35 -> 607Ch
+    assert positions == [round(q * CPM) for q in lumbar_eq3(home)]     # homing 35 -> 607Ch
 
 
 def test_forces_balance_the_body_wrench_and_the_load_cells_read_them(rig) -> None:
@@ -154,7 +144,7 @@ def test_forces_balance_the_body_wrench_and_the_load_cells_read_them(rig) -> Non
     npc, sigma = p['actuator']['load_cell_n_per_count'], p['sim']['load_cell_noise']
     enable_all(master, sim)
     goal = np.array([0.012, 0.400, 0.06])                 # away from the theta = 0 singularity
-    targets = [round(q * CPM) for q in eq3(goal)]
+    targets = [round(q * CPM) for q in lumbar_eq3(goal)]
     for nid in (1, 2, 3):
         master.send(0x200 + nid, struct.pack('<Hi', 0x0F, targets[nid - 1]))
     for _ in range(400):                                   # <= 0.8 s of simulated time
@@ -169,7 +159,7 @@ def test_forces_balance_the_body_wrench_and_the_load_cells_read_them(rig) -> Non
     # the ring's legs = actuator in series with the leg stiffness k: eq. 3 of the ring's
     # pose is the actuator length minus the strain f / k (push positive)
     k = sim.leg_stiffness
-    np.testing.assert_allclose(eq3(t.pose), t.lengths - t.forces / k, atol=1e-9)
+    np.testing.assert_allclose(lumbar_eq3(t.pose), t.lengths - t.forces / k, atol=1e-9)
     # near the theta = 0 singular band the ring follows the torso along the legs' soft
     # mode (a rotation about the far point where the leg lines nearly meet): y is held
     assert abs(t.pose[1] - goal[1]) < 1e-3
@@ -214,7 +204,7 @@ def test_fast_kinematics_agree_with_eq3() -> None:
     for _ in range(20):
         pose = np.array([0.0, 0.39, 0.0]) + rng.uniform([-0.02, -0.03, -0.3], [0.02, 0.03, 0.3])
         lengths, jac = sim._kinematics(pose)
-        np.testing.assert_allclose(lengths, eq3(pose), atol=1e-12)
+        np.testing.assert_allclose(lengths, lumbar_eq3(pose), atol=1e-12)
         np.testing.assert_allclose(jac, jacobian_fd(pose), atol=1e-6)
 
 

@@ -19,6 +19,7 @@ from brace_control.trajectory import (
     SCurve, TrajectoryError, TrajectoryRunner, Violation, ViaPointMinimumJerk, fitts_duration,
     plan_motion)
 from brace_control.trajectory.poses import PoseError, arrival_times
+from rpr_oracles import lumbar_eq3
 
 CONFIG = 'config/lumbar_brace.yaml'
 # The configured home (0, 0.390, 0) of the 3-RPR with collinear anchors is singular
@@ -579,10 +580,10 @@ def test_tracking_error_aborts_and_brakes(mech, limits):
     run.submit(GoalRequest('1', HOME + [0.03, 0.0, 0.05]), now=0.0)
     s = run.step(0.5)[0]
     # the error is taken in actuator lengths (independent oracle: the paper's eq. 3)
-    assert np.abs(lumbar_ik(s.p + 0.001) - lumbar_ik(s.p)).max() < 0.005
+    assert np.abs(lumbar_eq3(s.p + 0.001) - lumbar_eq3(s.p)).max() < 0.005
     assert run.check_tracking(s.p + 0.001, now=0.5) == []
     off = s.p + [0.0, 0.008, 0.0]                   # 8 mm lower: every leg ~8 mm short
-    assert np.abs(lumbar_ik(off) - lumbar_ik(s.p)).max() > 0.005
+    assert np.abs(lumbar_eq3(off) - lumbar_eq3(s.p)).max() > 0.005
     events = run.check_tracking(off, now=0.5)
     assert [(e.goal_id, e.state) for e in events] == [('1', GoalState.ABORTED)]
     assert 'tracking error' in events[0].reason and 'actuator a' in events[0].reason
@@ -597,20 +598,11 @@ def test_tracking_allows_the_measurement_pipeline_latency(mech, limits):
     ps = [run.step(t)[0].p for t in ts]
     i = len(ts) // 2 + 20                           # mid-motion, fastest
     lag = ps[i - 16]                                # where the brace was 80 ms ago
-    assert np.abs(lumbar_ik(lag) - lumbar_ik(ps[i])).max() > 0.002      # far from now ...
+    assert np.abs(lumbar_eq3(lag) - lumbar_eq3(ps[i])).max() > 0.002      # far from now ...
     assert run.check_tracking(lag, now=ts[i]) == []                     # ... within latency
     old = ps[i - 40]                                # 200 ms ago: beyond the latency window
     events = run.check_tracking(old, now=ts[i])
     assert [e.state for e in events] == [GoalState.ABORTED]
-
-
-def lumbar_ik(pose):
-    """The lumbar brace's IK, paper eq. 3 (r1 = 0.217, r2 = 0.195 m)."""
-    x, y, t = pose
-    r1, r2 = 0.217, 0.195
-    return np.array([math.hypot(x - r2 * math.cos(t) + r1, y - r2 * math.sin(t)),
-                     math.hypot(x, y),
-                     math.hypot(x + r2 * math.cos(t) - r1, y + r2 * math.sin(t))])
 
 
 # ---------------------------------------------------------------- path timing

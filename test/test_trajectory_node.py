@@ -19,6 +19,7 @@ from brace_control.nodes.msgs import pose_msg, sec_to_stamp, stamp_to_sec
 from brace_control.nodes.trajectory_node import (GOAL_TOPIC, PATH_TOPIC, STATUS_TOPIC,
                                                  TrajectoryNode)
 from ros_helpers import RELIABLE_10, ros  # noqa: F401
+from rpr_oracles import lumbar_eq3
 
 pytestmark = pytest.mark.ros
 
@@ -190,7 +191,7 @@ def test_first_goal_starts_from_a_fresh_measured_pose_and_tracking_error_aborts(
     # length (paper eq. 3) from every setpoint of the last tracking_latency -> aborted
     window = int(node.runner.tracking_latency * 200.0) + 10      # setpoints at 200 Hz, + margin
     ros.spin_until(lambda: len(setpoints) > window and min(
-        np.abs(lumbar_ik(pose_of(m)) - lumbar_ik(measured)).max() for m in setpoints[-window:]) > 0.006,
+        np.abs(lumbar_eq3(pose_of(m)) - lumbar_eq3(measured)).max() for m in setpoints[-window:]) > 0.006,
         timeout=10.0, what='setpoints 6 mm of actuator length away')
     measured_pub.publish(pose_msg(measured, frame_id=FRAME))
     ros.spin_until(lambda: ('1', 'aborted') in states(status), what='aborted status')
@@ -198,12 +199,3 @@ def test_first_goal_starts_from_a_fresh_measured_pose_and_tracking_error_aborts(
     assert aborted.level == DiagnosticStatus.ERROR
     assert 'tracking error' in value(aborted, 'reason')
     assert states(status) == [('1', 'accepted'), ('1', 'aborted')]
-
-
-def lumbar_ik(pose):
-    """The lumbar brace's IK, paper eq. 3 (r1 = 0.217, r2 = 0.195 m)."""
-    x, y, t = pose
-    r1, r2 = 0.217, 0.195
-    return np.array([math.hypot(x - r2 * math.cos(t) + r1, y - r2 * math.sin(t)),
-                     math.hypot(x, y),
-                     math.hypot(x + r2 * math.cos(t) - r1, y + r2 * math.sin(t))])
