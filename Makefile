@@ -23,8 +23,10 @@ $(VENV)/.installed: requirements.txt setup.py setup.cfg package.xml
 demo: venv
 	$(PY) -m brace_control.demo --device $(DEVICE) --out demo_output
 
+# pytest exits 5 when it collected no test: that is a failure here, said out loud
 test: venv
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q; rc=$$?; \
+	if [ $$rc -eq 5 ]; then echo "make test: pytest collected no tests" >&2; fi; exit $$rc
 
 # every benchmark script; numbers and the commands that made them: bench/RESULTS.md
 bench: venv
