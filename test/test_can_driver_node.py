@@ -161,3 +161,23 @@ def test_bad_parameter_exits_1_naming_it(capsys):
                  '-p', 'safety.force_limit:=-5.0'])
     assert code == 1
     assert 'safety.force_limit' in capsys.readouterr().err
+
+
+@pytest.mark.parametrize('name, value', [('safety.command_timeout', 0.0),
+                                         ('safety.force_limit', -1.0),
+                                         ('can.sync_rate_hz', 5000.0)])
+def test_a_bad_safety_value_stops_start_up_naming_the_parameter(ros, name, value):  # noqa: F811
+    from brace_control.config import ConfigError
+    with pytest.raises(ConfigError, match=name.replace('.', r'\.')):
+        ros.device_node(CanDriverNode, boot=False, **{name: value})
+
+
+def test_safety_limits_are_read_only_at_run_time(ros):  # noqa: F811
+    from rclpy.parameter import Parameter
+    node = ros.device_node(CanDriverNode, boot=False)
+    try:
+        result = node.set_parameters([Parameter('safety.force_limit', value=1000.0)])[0]
+        assert not result.successful and 'read-only' in result.reason
+        assert node.get_parameter('safety.force_limit').value == 250.0    # the YAML's value
+    finally:
+        node.shutdown()
