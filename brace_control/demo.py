@@ -82,6 +82,26 @@ def prepare_config(device: str, out: Path) -> tuple[Path, str | None]:
     return derived, note
 
 
+def _as_recorded(pose: Sequence[float], config: Path) -> list[float]:
+    """A goal as :func:`~brace_control.demo_report.read_run` records poses: (x, y, yaw of the
+    orientation). A two-coordinate pose (x, y) has yaw 0; the shoulder's motion angles
+    become their orientation's yaw (x = y = 0)."""
+    from .config import load_device_config
+    from .demo_report import _yaw
+    from .mechanisms import mechanism_from_config
+    mech = mechanism_from_config(load_device_config(config))
+    p = [float(v) for v in pose]
+    if getattr(mech, 'pose_kind', None) == 'spherical':
+        x, y, z, w = (float(v) for v in mech.quaternion_from_pose(p))
+
+        class _Q:
+            pass
+        q = _Q()
+        q.x, q.y, q.z, q.w = x, y, z, w
+        return [0.0, 0.0, _yaw(q)]
+    return (p + [0.0, 0.0, 0.0])[:3]
+
+
 def _find_service(node, suffix: str, timeout: float) -> str | None:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -284,7 +304,7 @@ def run_demo(device: str, out: Path, *, rate: float = 1.0, settle: float = 3.0,
         if not (out / 'run.mcap').exists():
             return 1
     run = read_run(out / 'run.mcap')
-    summary = summarise(run, [g.pose for g in goals])
+    summary = summarise(run, [_as_recorded(g.pose, config) for g in goals])
     plot_run(run, out / 'run.png', title=f'{device}: exercise on the simulated bus')
     print(f'recorded {out / "run.mcap"}, plotted {out / "run.png"}')
     for line in summary.lines():

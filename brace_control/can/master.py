@@ -55,7 +55,7 @@ from .pdo import (LOAD_CELL_INPUT, RPDO1, TORQUE_ACTUAL, TPDO1, SdoWrite, frame_
 from .supervision import (Fault, FaultKind, Limits, Sample, Supervisor, check_sample,
                           check_step, decode_error_frame)
 from .timing import PeriodStats, TimingReport, run_periodic
-from .units import AxisScaling, scaling_from_config
+from .units import AxisScaling, actuator_kind, scaling_from_config
 
 __all__ = ['BraceMaster', 'MasterConfig', 'MasterState', 'DriveStatus', 'BusStatus',
            'MasterStatus', 'Feedback']
@@ -168,8 +168,7 @@ class MasterConfig:
             scaling=scaling, limits=limits,
             home_lengths=None if home_lengths is None else tuple(float(x) for x in home_lengths),
             # linear actuators carry a load cell on 2401h; rotary drives report 6077h torque
-            force_object=(LOAD_CELL_INPUT if 'screw_lead' in dc.section('actuator')
-                          else TORQUE_ACTUAL),
+            force_object=(LOAD_CELL_INPUT if actuator_kind(dc) == 'linear' else TORQUE_ACTUAL),
         )
         values.update(overrides)
         return cls(**values)
@@ -508,7 +507,7 @@ class BraceMaster:
         node_id = cfg.node_ids[index]
         period_us = round(cfg.period * 1e6)
         ip_value, ip_index = _interpolation_period(cfg.period)
-        lo, hi = self.limits.stroke
+        lo, hi = self.limits.stroke_of(index)
         writes = [
             SdoWrite(0x1017, 0, 'H', cfg.drive_heartbeat_ms, 'producer heartbeat time (ms)'),
             SdoWrite(0x1016, 1, 'I', (cfg.master_node_id << 16) | (2 * cfg.master_heartbeat_ms),
@@ -684,7 +683,7 @@ class BraceMaster:
             return False
         for d in self._drives:
             if d.sample is not None and check_step(d.name, d.sample.position, float(sp.position[d.index]),
-                                                   self.limits.command_timeout, self.limits):
+                                                   self.limits.command_timeout, self.limits, d.index):
                 return True
         return False
 
@@ -887,7 +886,7 @@ class BraceMaster:
         for d in self._drives:
             current = d.goal if d.goal is not None else d.target
             cause = check_step(d.name, self.scaling.to_si(current), float(sp.position[d.index]),
-                               dt, limits)
+                               dt, limits, d.index)
             if cause:
                 self.supervisor.report(FaultKind.STEP_LIMIT, f'setpoint rejected: {cause}',
                                        drive=d.name, still_present=self._step_condition)
@@ -925,13 +924,14 @@ class BraceMaster:
         n = len(self._drives) or len(self.config.node_ids)
         if arr.shape != (n,):
             raise ValueError(f'expected {n} target positions ({", ".join(self.names)}), got shape {arr.shape}')
-        lo, hi = self.limits.stroke
+        u = self.limits.unit
         for i, v in enumerate(arr):
             if not math.isfinite(v):
                 raise ValueError(f'target of {self.names[i]} is not finite: {v}')
+            lo, hi = self.limits.stroke_of(i)
             if not lo <= v <= hi:
-                raise ValueError(f'target of {self.names[i]} = {v:.5f} m is outside the stroke '
-                                 f'{lo:.3f}–{hi:.3f} m')
+                raise ValueError(f'target of {self.names[i]} = {v:.5f} {u} is outside the '
+                                 f'{"stroke" if u == "m" else "joint range"} {lo:.3f}–{hi:.3f} {u}')
         self._setpoint_seq += 1
         self._setpoint = _Setpoint(arr.copy(), time.perf_counter(), self._setpoint_seq,
                                    None if stamp is None else float(stamp))
@@ -1123,7 +1123,7 @@ class BraceMaster:
                            what='SWITCH ON DISABLED after homing')
                 self.state = MasterState.DISABLED
             log.info('homed (method %d): %s', self.config.homing_method,
-                     ', '.join(f'{n} {p:.4f} m' for n, p in zip(self.names, self.feedback().position)))
+                     ', '.join(f'{n} {p:.4f} {self.limits.unit}' for n, p in zip(self.names, self.feedback().position)))
 
     def protective_stop(self, kind: FaultKind, cause: str, *, drive: str | None = None,
                         still_present: Callable[[], bool] | None = None) -> Fault | None:

@@ -218,6 +218,16 @@ class Limits:
     command_timeout: float         # s
     jump_factor: float = 4.0       # a step above jump_factor·v_max·Δt + margin is impossible
     speed_factor: float = 1.5      # measured speed above speed_factor·v_max -> overspeed
+    #: per-actuator (lo, hi) range (m or rad) from ``mechanism.actuator_limits``; ``None``:
+    #: every actuator has :attr:`stroke`
+    strokes: tuple[tuple[float, float], ...] | None = None
+    unit: str = 'm'                # 'm' (linear) or 'rad' (rotary), for messages
+
+    def stroke_of(self, index: int | None) -> tuple[float, float]:
+        """The range of actuator ``index`` (the common :attr:`stroke` if not per actuator)."""
+        if index is None or self.strokes is None:
+            return self.stroke
+        return self.strokes[index]
 
     @classmethod
     def from_config(cls, cfg: Mapping[str, Any], scaling: AxisScaling) -> Limits:
@@ -230,10 +240,15 @@ class Limits:
                 node = node[key]
             return node
         mech = cfg.get('mechanism', {}) if isinstance(cfg.get('mechanism'), Mapping) else {}
-        lo = float(mech.get('stroke_min', -math.inf))
-        hi = float(mech.get('stroke_max', math.inf))
+        strokes = _actuator_limits(cfg)
+        if strokes is not None:
+            lo, hi = min(s[0] for s in strokes), max(s[1] for s in strokes)
+        else:
+            lo = float(mech.get('stroke_min', -math.inf))
+            hi = float(mech.get('stroke_max', math.inf))
         if lo >= hi:
             raise ConfigError(f'mechanism.stroke_min {lo} must be below mechanism.stroke_max {hi}')
+        from .units import actuator_kind
         consumer = float(get('can.heartbeat_consumer_ms'))
         producer = float(get('can.drive_heartbeat_ms'))
         if consumer <= producer:
@@ -254,15 +269,17 @@ class Limits:
             heartbeat_timeout=consumer / 1000.0,
             boot_timeout=float(get('can.boot_timeout')),
             command_timeout=float(get('safety.command_timeout')),
+            strokes=strokes,
+            unit='rad' if actuator_kind(cfg) == 'rotary' else 'm',
         )
 
-    def max_step(self, current: float, new: float, dt: float) -> float:
+    def max_step(self, current: float, new: float, dt: float, index: int | None = None) -> float:
         """Largest allowed |new − current| over ``dt``: ``v·dt + margin`` (SAFETY 7).
 
         ``v`` is ``v_max``, ramped down near the stroke end being approached
         (``v ≤ √(2·a_max·d)``, ``d`` the distance from ``new`` to that end; SAFETY 5).
         """
-        lo, hi = self.stroke
+        lo, hi = self.stroke_of(index)
         d = (hi - new) if new > current else (new - lo)
         v = min(self.v_max, math.sqrt(2.0 * self.a_max * max(d, 0.0)))
         return v * dt + self.step_margin
@@ -280,16 +297,36 @@ class Sample:
     time: float                   # perf_counter of that SYNC
 
 
-def check_step(drive: str, current: float, new: float, dt: float, limits: Limits) -> str | None:
-    """Cause text if a new target violates the stroke or the per-command step limit, else None."""
-    lo, hi = limits.stroke
+def check_step(drive: str, current: float, new: float, dt: float, limits: Limits,
+               index: int | None = None) -> str | None:
+    """Cause text if a new target violates the stroke or the per-command step limit, else None.
+
+    ``index``: the actuator's index, for per-actuator ranges (:attr:`Limits.strokes`).
+    """
+    lo, hi = limits.stroke_of(index)
+    u = limits.unit
     if not lo <= new <= hi:
-        return f'target {new:.5f} m is outside the stroke {lo:.3f}–{hi:.3f} m'
-    allowed = limits.max_step(current, new, dt)
+        what = 'stroke' if u == 'm' else 'joint range'
+        return f'target {new:.5f} {u} is outside the {what} {lo:.3f}–{hi:.3f} {u}'
+    allowed = limits.max_step(current, new, dt, index)
     if abs(new - current) > allowed:
-        return (f'target step {abs(new - current) * 1e3:.3f} mm in {dt * 1e3:.1f} ms exceeds '
-                f'{allowed * 1e3:.3f} mm (v_max·dt + margin)')
+        mu = 'mm' if u == 'm' else 'mrad'
+        return (f'target step {abs(new - current) * 1e3:.3f} {mu} in {dt * 1e3:.1f} ms exceeds '
+                f'{allowed * 1e3:.3f} {mu} (v_max·dt + margin)')
     return None
+
+
+def _actuator_limits(cfg: Mapping[str, Any]) -> tuple[tuple[float, float], ...] | None:
+    """Per-actuator ranges from the mechanism model (``mechanism.actuator_limits``), or
+    ``None`` when the config holds no buildable mechanism (then ``stroke_min/max`` apply)."""
+    if not isinstance(cfg.get('mechanism'), Mapping) or 'type' not in cfg['mechanism']:
+        return None
+    try:
+        from ..mechanisms import mechanism_from_config
+        lo, hi = mechanism_from_config(cfg).actuator_limits
+    except (ImportError, ValueError, KeyError, TypeError):
+        return None
+    return tuple((float(a), float(b)) for a, b in zip(lo, hi))
 
 
 def check_sample(prev: Sample | None, cur: Sample, limits: Limits, *,

@@ -6,8 +6,11 @@ docs/can.md, "Units":
   (8192 / 0.001 m = 8 192 000 counts/m) for 6064h position actual, 607Ah target,
   607Ch home offset, 607Dh software limits, 6065h following error window; counts/s for
   606Ch / 607Fh, counts/s² for 6083h–6085h;
-* rotary drives: counts per radian = ``encoder_counts_per_rev / (2π) × gear_ratio``;
-* load cell (2401h, INT16): N = counts × ``load_cell_n_per_count`` (push positive).
+* rotary drives (``actuator.kind: rotary``): counts per radian =
+  ``encoder_counts_per_rev / (2π) × gear_ratio`` (joint angle, motor encoder);
+* load cell (2401h, INT16): N = counts × ``load_cell_n_per_count`` (push positive);
+* torque actual (6077h, INT16, rotary drives): ‰ of the motor's rated torque (6076h) =
+  ``rated_current × torque_constant``; joint N·m = counts / 1000 × that × ``gear_ratio``.
 """
 from __future__ import annotations
 
@@ -18,7 +21,7 @@ from typing import Any
 
 from ..config import ConfigError
 
-__all__ = ['AxisScaling', 'scaling_from_config', 'INT16_MIN', 'INT16_MAX', 'INT32_MIN', 'INT32_MAX']
+__all__ = ['AxisScaling', 'scaling_from_config', 'actuator_kind', 'rated_joint_torque', 'INT16_MIN', 'INT16_MAX', 'INT32_MIN', 'INT32_MAX']
 
 INT16_MIN, INT16_MAX = -(1 << 15), (1 << 15) - 1
 INT32_MIN, INT32_MAX = -(1 << 31), (1 << 31) - 1
@@ -102,11 +105,28 @@ class AxisScaling:
         return min(INT16_MAX, math.floor(fraction * self.rated_force / self.newton_per_count))
 
 
+def actuator_kind(cfg: Mapping[str, Any]) -> str:
+    """``'linear'`` or ``'rotary'``: ``actuator.kind`` when given, else ``'linear'`` when the
+    section has a ``screw_lead`` and ``'rotary'`` when it has none."""
+    act = cfg.get('actuator') if isinstance(cfg.get('actuator'), Mapping) else {}
+    kind = act.get('kind')
+    if kind is None:
+        return 'linear' if 'screw_lead' in act else 'rotary'
+    if kind not in ('linear', 'rotary'):
+        raise ConfigError(f'parameter actuator.kind = {kind!r}; expected "linear" or "rotary"')
+    return str(kind)
+
+
 def scaling_from_config(cfg: Mapping[str, Any]) -> AxisScaling:
     """The device's :class:`AxisScaling` from its YAML (``actuator.*``).
 
-    A rotary device sets ``actuator.gear_ratio`` and no ``screw_lead``; the load cell
-    then reads torque (N·m per count).
+    ``actuator.kind`` (see :func:`actuator_kind`) selects the axis. Linear: counts/m from
+    ``encoder_counts_per_rev / screw_lead``, the load cell 2401h in N
+    (``load_cell_n_per_count``, ``load_cell_rated_force``). Rotary: counts/rad from
+    ``encoder_counts_per_rev × gear_ratio / 2π``, the torque actual 6077h in ‰ of the
+    motor's rated torque ``rated_current × torque_constant``, so N·m per count at the
+    joint = ``rated_current × torque_constant × gear_ratio / 1000`` and the full scale
+    (saturation) is 1000 ‰.
 
     :raises ConfigError: a missing or non-positive value, naming the parameter.
     """
@@ -123,11 +143,33 @@ def scaling_from_config(cfg: Mapping[str, Any]) -> AxisScaling:
         return float(v)
 
     cpr = num('encoder_counts_per_rev')
-    if 'screw_lead' in act:
+    if actuator_kind(cfg) == 'linear':
         return AxisScaling.linear(encoder_counts_per_rev=int(cpr), screw_lead_m=num('screw_lead'),
                                   newton_per_count=num('load_cell_n_per_count'),
                                   rated_force_n=num('load_cell_rated_force'))
-    return AxisScaling.rotary(encoder_counts_per_rev=int(cpr),
-                              gear_ratio=num('gear_ratio') if 'gear_ratio' in act else 1.0,
+    gear = num('gear_ratio') if 'gear_ratio' in act else 1.0
+    if 'rated_current' in act or 'torque_constant' in act:
+        rated = rated_joint_torque(cfg)
+        return AxisScaling.rotary(encoder_counts_per_rev=int(cpr), gear_ratio=gear,
+                                  newton_metre_per_count=rated / 1000.0, rated_torque_nm=rated)
+    # no motor data: the torque reading scaled like a load cell (N·m per count)
+    return AxisScaling.rotary(encoder_counts_per_rev=int(cpr), gear_ratio=gear,
                               newton_metre_per_count=num('load_cell_n_per_count'),
                               rated_torque_nm=num('load_cell_rated_force'))
+
+
+def rated_joint_torque(cfg: Mapping[str, Any]) -> float:
+    """Joint torque (N·m) at 1000 ‰ of 6077h: ``rated_current × torque_constant × gear_ratio``.
+
+    :raises ConfigError: a missing or non-positive value, naming the parameter.
+    """
+    act = cfg.get('actuator') if isinstance(cfg.get('actuator'), Mapping) else {}
+    vals = []
+    for key in ('rated_current', 'torque_constant', 'gear_ratio'):
+        v = act.get(key, 1.0 if key == 'gear_ratio' else None)
+        if v is None:
+            raise ConfigError(f'parameter actuator.{key!r} is missing (rotary drive: torque actual 6077h scaling)')
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+            raise ConfigError(f'parameter actuator.{key} = {v!r} must be a positive number')
+        vals.append(float(v))
+    return vals[0] * vals[1] * vals[2]

@@ -276,7 +276,8 @@ class CanDriverNode(Node):
 
     def _positions(self) -> str:
         fb = self.master.feedback()
-        return ', '.join(f'{n} {p:.4f} m' for n, p in zip(self.names, fb.position))
+        u = self.master_config.limits.unit
+        return ', '.join(f'{n} {p:.4f} {u}' for n, p in zip(self.names, fb.position))
 
     def _enable(self) -> str:
         self.master.enable()

@@ -44,13 +44,19 @@ SCHEMA: dict[str, Param] = {
     'base_frame': Param('brace_base', 'frame of the fixed base', read_only=True),
     'platform_frame': Param('brace_platform', 'frame of the moving platform', read_only=True),
     # actuator (per actuator, SI)
-    'actuator.max_velocity': Param(0.065, 'actuator speed limit (m/s or rad/s)', (1e-4, 10.0), True),
-    'actuator.max_acceleration': Param(0.5, 'actuator acceleration limit', (1e-4, 100.0), True),
+    'actuator.max_velocity': Param(0.065, 'actuator speed limit (m/s or rad/s)', (1e-4, 100.0), True),
+    'actuator.max_acceleration': Param(0.5, 'actuator acceleration limit', (1e-4, 1e4), True),
     'actuator.max_force': Param(250.0, 'actuator force (N) or torque (N·m) limit', (0.0, 1e4), True),
     'actuator.screw_lead': Param(0.001, 'm per motor revolution (linear actuators)', (1e-6, 1.0), True),
     'actuator.encoder_counts_per_rev': Param(8192, 'encoder counts per motor revolution', (1, 1 << 24), True),
     'actuator.load_cell_rated_force': Param(300.0, 'load-cell full scale (N)', (1.0, 1e5), True),
     'actuator.load_cell_n_per_count': Param(0.01, 'load-cell scaling (N per count)', (1e-9, 1e3), True),
+    'actuator.kind': Param('linear', 'linear (m, load cell 2401h) or rotary (rad, torque actual 6077h)',
+                           read_only=True, choices=('linear', 'rotary')),
+    'actuator.gear_ratio': Param(1.0, 'motor turns per joint turn (rotary)', (1e-3, 1e5), True),
+    'actuator.torque_constant': Param(0.0229, 'motor torque constant (N·m/A; rotary: 6077h scaling)', (1e-6, 100.0), True),
+    'actuator.rated_current': Param(1.0, "motor rated current (A): 1000 ‰ of 6077h = rated_current × "
+                                    "torque_constant × gear_ratio N·m at the joint", (1e-6, 1e4), True),
     # trajectory
     'trajectory.rate_hz': Param(200.0, 'setpoint rate (Hz)', (1.0, 2000.0)),
     'trajectory.profile': Param('minimum_jerk', 'motion profile',

@@ -25,6 +25,15 @@ on the bus (:class:`~brace_control.sim.host.SimBus`) and, on every SYNC from the
 3. sends each drive's synchronous TPDOs, then applies the RPDOs received since the last
    SYNC (CiA 301: synchronous RPDO data take effect at the next SYNC).
 
+Devices other than the planar 3-RPR (the neck braces, the four-bar trainer, the shoulder,
+the continuum robot): rigid and quasi-static, any mechanism through its protocol
+(:meth:`SimulatedBrace._rigid`): the pose from the actuator positions, ``W_body`` with
+``sim.stiffness``/``sim.damping`` of size dof x dof, efforts from ``J^T f = -W_body`` by least
+squares, the cable 4-RPR's from its tension distribution (infeasible: the load cells read
+full scale). Rotary drives (``actuator.kind: rotary``): positions in rad (counts/rad =
+``encoder_counts_per_rev x gear_ratio / 2 pi``), the effort is the joint torque in 6077h
+(per mille of ``rated_current x torque_constant x gear_ratio``).
+
 The actuators' physical lengths at power-up are ``mech.inverse(mech.home_pose)`` (the
 parked brace); the incremental encoders read 0 until homed (method 35 with 607Ch = the
 home length in counts, see docs/can.md).
@@ -127,11 +136,26 @@ def _solve3(a: list[list[float]], r: list[float]) -> tuple[float, float, float]:
     return x0, x1, x2
 
 
-def _matrix3(value: Any, name: str) -> np.ndarray:
+def _matrix(value: Any, n: int, name: str) -> np.ndarray:
     arr = np.asarray(value, dtype=float)
-    if arr.size != 9 or not np.all(np.isfinite(arr)):
-        raise ConfigError(f'{name}: expected 9 finite numbers (3x3 row-major), got {value!r}')
-    return arr.reshape(3, 3)
+    if arr.size != n * n or not np.all(np.isfinite(arr)):
+        raise ConfigError(f'{name}: expected {n * n} finite numbers ({n}x{n} row-major, n = the '
+                          f'mechanism\'s dof), got {value!r}')
+    return arr.reshape(n, n)
+
+
+def _matrix3(value: Any, name: str) -> np.ndarray:
+    return _matrix(value, 3, name)
+
+
+def _is_rotary(act: Mapping[str, Any]) -> bool:
+    """``actuator.kind`` (default: linear when a ``screw_lead`` is given), as docs/can.md."""
+    kind = act.get('kind')
+    if kind is None:
+        return 'screw_lead' not in act
+    if kind not in ('linear', 'rotary'):
+        raise ConfigError(f'actuator.kind = {kind!r}: expected "linear" or "rotary"')
+    return kind == 'rotary'
 
 
 class SimulatedBrace:
@@ -162,12 +186,30 @@ class SimulatedBrace:
             raise ConfigError(f'can.node_ids has {len(self.node_ids)} ids for {n} actuators')
         eds_path = Path(eds) if eds is not None else \
             cfg.relative_file(str(can_cfg.get('eds', 'lumbar_drive.eds')))
-        self.counts_per_m = float(act['encoder_counts_per_rev']) / float(act['screw_lead'])
+        #: rotary drives (``actuator.kind: rotary``): positions in rad, the effort is the joint
+        #: torque reported as 6077h torque actual; linear: m and the load cell 2401h
+        self.rotary = _is_rotary(act)
+        cpr = float(act['encoder_counts_per_rev'])
+        if self.rotary:
+            gear = float(act.get('gear_ratio', 1.0))
+            #: encoder counts per actuator unit (m, or rad for rotary drives)
+            self.counts_per_m = cpr * gear / (2.0 * math.pi)
+            if 'rated_current' in act or 'torque_constant' in act:
+                # 6077h: per mille of the motor's rated torque (6076h = rated current x kt)
+                self.rated_force = float(act['rated_current']) * float(act['torque_constant']) * gear
+                self.n_per_count = self.rated_force / 1000.0
+            else:
+                self.rated_force = float(act['load_cell_rated_force'])
+                self.n_per_count = float(act['load_cell_n_per_count'])
+        else:
+            self.counts_per_m = cpr / float(act['screw_lead'])
+            self.n_per_count = float(act['load_cell_n_per_count'])
+            self.rated_force = float(act['load_cell_rated_force'])
         lo, hi = self.mechanism.actuator_limits
-        self.n_per_count = float(act['load_cell_n_per_count'])
-        self.rated_force = float(act['load_cell_rated_force'])
-        self.stiffness = _matrix3(sim.get('stiffness'), 'sim.stiffness')
-        self.damping = _matrix3(sim.get('damping'), 'sim.damping')
+        dof = int(self.mechanism.dof)
+        self.dof = dof
+        self.stiffness = _matrix(sim.get('stiffness'), dof, 'sim.stiffness')
+        self.damping = _matrix(sim.get('damping'), dof, 'sim.damping')
         self.rest_pose = np.asarray(sim.get('rest_pose', self.mechanism.home_pose), dtype=float)
         self.noise_n = float(sim.get('load_cell_noise', 0.0))
         self.offset_n = float(sim.get('load_cell_offset', 0.0))
@@ -181,17 +223,36 @@ class SimulatedBrace:
         # the same mechanism with the stroke widened by 1 cm: inverse kinematics of the
         # rigid ring may leave the stroke by f / k at the end stops (physics only)
         mech_section = dict(cfg.section('mechanism'))
-        mech_section['stroke_min'] = float(mech_section['stroke_min']) - 0.01
-        mech_section['stroke_max'] = float(mech_section['stroke_max']) + 0.01
-        self._phys_mech = mechanism_from_config({'mechanism': mech_section})
-        self._legs = self._fast_legs()
+        #: the 3-RPR brace: legs in series with a stiffness (see :meth:`_equilibrium`);
+        #: any other mechanism: rigid (see :meth:`_rigid`)
+        self.compliant = str(mech_section.get('type', '')) == 'rpr3'
+        if self.compliant:
+            mech_section['stroke_min'] = float(mech_section['stroke_min']) - 0.01
+            mech_section['stroke_max'] = float(mech_section['stroke_max']) + 0.01
+            self._phys_mech = mechanism_from_config({'mechanism': mech_section})
+        else:
+            self._phys_mech = self.mechanism
+        self._legs = self._fast_legs() if self.compliant else None
+        #: seconds of physics per SYNC the rigid model aims at (see :meth:`_rigid_cost`)
+        self.physics_budget = 1.5e-4
+        self.physics_every = 1
+        self._use_newton = False
+        self._skipped = 0
+        self._elapsed = 0.0
+        if not self.compliant:
+            self._rigid_cost(q0)
+        #: why the actuators cannot hold the body (4-RPR cables: no tension distribution
+        #: within [t_min, t_max]); '' when they can. The load cells then read full scale.
+        self.infeasible = ''
+        self.infeasible_count = 0
         self.drives: list[SimulatedDrive] = []
         for i, node_id in enumerate(self.node_ids):
             limits = DriveLimits(
                 counts_per_m=self.counts_per_m, max_velocity=float(act['max_velocity']),
                 max_acceleration=float(act['max_acceleration']),
                 stroke_min=float(lo[i]), stroke_max=float(hi[i]),
-                max_force=float(act.get('max_force', 250.0)))
+                # 6077h torque actual is in per mille of this (rotary: the rated torque)
+                max_force=self.rated_force if self.rotary else float(act.get('max_force', 250.0)))
             self.drives.append(SimulatedDrive(node_id, eds_path, limits=limits,
                                               initial_length_m=float(q0[i])))
         self.host = SimBus(channel or str(can_cfg.get('channel', 'brace0')),
@@ -203,6 +264,7 @@ class SimulatedBrace:
         self._pose = np.asarray(self.mechanism.home_pose, dtype=float).copy()
         self._q_last = q0.copy()
         self._static: tuple[np.ndarray, ...] | None = None
+        self._last_dynamic: tuple[np.ndarray, ...] | None = None
         self._time = 0.0
         self._sync_count = 0
         #: per-actuator load-cell override (N) for fault injection; None = physics
@@ -356,19 +418,122 @@ class SimulatedBrace:
         self.equilibrium_failures += 1
         return np.array(pose), np.array(rows), np.array(w), np.array(f)
 
+    def _rigid_cost(self, q0: np.ndarray) -> None:
+        """Choose the rigid pose tracker and how often it runs while the device moves.
+
+        The simulator shares the driver process (and its GIL) with the master and the
+        nodes, so a SYNC's physics must stay near :attr:`physics_budget`. A square or
+        redundant mechanism tracks its pose by one Gauss-Newton step on the IK residual
+        per update (the actuators move little between SYNCs; at rest the steps converge
+        within a few SYNCs before the state is frozen); an under-actuated one (the
+        four-bar) uses ``forward_nearest``. When one update costs more than the budget,
+        it runs every :attr:`physics_every` SYNCs while moving (every SYNC at rest).
+        """
+        import time as _time
+        mech = self.mechanism
+        home = np.asarray(mech.home_pose, dtype=float)
+        self._use_newton = mech.n_actuators >= mech.dof
+        t0 = _time.perf_counter()
+        try:
+            for _ in range(3):
+                if self._use_newton:
+                    mech.inverse(home)
+                    mech.jacobian(home)
+                else:
+                    mech.forward_nearest(q0, home)
+                    mech.jacobian(home)
+                if getattr(mech, 'actuation', None) == 'cable' and hasattr(mech, 'distribute'):
+                    mech.distribute(home, np.zeros(mech.dof))
+        except ValueError:
+            pass
+        cost = (_time.perf_counter() - t0) / 3.0
+        self.physics_every = max(1, math.ceil(cost / self.physics_budget))
+
+    def _rigid_pose(self, q: np.ndarray, moving: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        """The rigid device's pose for actuator positions ``q``, continuous with the last
+        one, and ``J`` at it when already computed."""
+        mech = self.mechanism
+        prev = self._pose
+        if self._use_newton:
+            # Gauss-Newton on the IK residual (least squares for a redundant device: its
+            # lengths need not be exactly consistent while the drives track); one step per
+            # SYNC while moving, to convergence at rest
+            pose = prev.copy()
+            for _ in range(1 if moving else 8):
+                try:
+                    r = q - mech.inverse(pose)
+                    J = np.asarray(mech.jacobian(pose), dtype=float)
+                    step = np.linalg.lstsq(J, r, rcond=None)[0]
+                except ValueError:
+                    break
+                pose = pose + step
+                if float(np.max(np.abs(step))) <= 1e-12:
+                    return pose, J
+            else:
+                if moving:
+                    return pose, None
+            if float(np.max(np.abs(pose - prev))) < 0.05:
+                return pose, None
+        try:
+            return np.asarray(mech.forward_nearest(q, prev), dtype=float), None
+        except ValueError as exc:
+            fit = getattr(exc, 'pose', None)        # 4-RPR: the best least-squares fit
+            self.equilibrium_failures += 1
+            return (np.asarray(fit, dtype=float) if fit is not None else prev.copy()), None
+
+    def _rigid(self, q: np.ndarray, dt: float, moving: bool = False) -> tuple[np.ndarray, ...]:
+        """Any mechanism, rigid and quasi-static: the pose from the actuator positions, the
+        body's wrench ``W_body = -K (pose - rest) - D pose_dot`` (generalised forces
+        conjugate to the pose coordinates, ``sim.stiffness``/``sim.damping`` dof x dof),
+        the actuator efforts from ``J^T f = -W_body``: the least-squares (minimum-norm)
+        solution; for a cable 4-RPR the mechanism's tension distribution (``distribute``),
+        and when no tension distribution exists :attr:`infeasible` says why (the load cells
+        then read full scale). An under-actuated device (the one-motor four-bar) balances
+        only the part of ``W_body`` its motor can: the rest is taken by its joints.
+
+        :returns: ``pose, J(pose), W_body, f``.
+        """
+        mech = self.mechanism
+        pose, J = self._rigid_pose(q, moving)
+        pose_dot = (pose - self._pose) / dt if dt > 0 else np.zeros(self.dof)
+        w_body = -self.stiffness @ (pose - self.rest_pose) - self.damping @ pose_dot
+        if J is None:
+            J = np.asarray(mech.jacobian(pose), dtype=float)
+        self.infeasible = ''
+        if getattr(mech, 'actuation', None) == 'cable' and hasattr(mech, 'distribute'):
+            dist = mech.distribute(pose, -w_body)
+            if dist.feasible:
+                return pose, J, w_body, np.asarray(dist.forces, dtype=float)
+            self.infeasible = dist.reason
+            self.infeasible_count += 1
+        f = np.linalg.lstsq(J.T, -w_body, rcond=None)[0]
+        return pose, J, w_body, f
+
     def _physics(self, dt: float) -> BraceTruth:
         """Pose from lengths, body wrench, actuator forces, load-cell counts (see module doc)."""
         q = np.array([d.length_m for d in self.drives])
         q_dot = np.array([d.velocity_mps for d in self.drives])
-        if self._static is not None and dt > 0 and not np.any(q_dot) \
+        moving_q = bool(np.any(q_dot))
+        self._elapsed += dt
+        if self._static is not None and dt > 0 and not moving_q \
                 and np.array_equal(q, self._q_last):
             pose, J, pose_dot, w_body, forces = self._static     # at rest: only noise changes
+            self._elapsed = 0.0
+        elif (not self.compliant and moving_q and self._skipped + 1 < self.physics_every
+              and self._last_dynamic is not None and dt > 0):
+            # a costly rigid model runs every physics_every SYNCs while moving (GIL budget)
+            self._skipped += 1
+            pose, J, pose_dot, w_body, forces = self._last_dynamic
         else:
-            pose, J, w_body, forces = self._equilibrium(q, dt)
-            pose_dot = (pose - self._pose) / dt if dt > 0 else np.zeros(3)
+            self._skipped = 0
+            dt_phys, self._elapsed = (dt if self.compliant else self._elapsed), 0.0
+            pose, J, w_body, forces = (self._equilibrium(q, dt) if self.compliant
+                                       else self._rigid(q, dt_phys, moving_q))
+            pose_dot = (pose - self._pose) / dt_phys if dt > 0 else np.zeros(self.dof)
+            self._last_dynamic = (pose, J, pose_dot, w_body, forces)
             self._pose, self._q_last = pose, q
             moving = bool(np.any(q_dot)) or float(np.max(np.abs(pose_dot))) > 1e-9
-            self._static = None if moving else (pose, J, np.zeros(3), w_body, forces)
+            self._static = None if moving else (pose, J, np.zeros(self.dof), w_body, forces)
         noise = self._rng.normal(0.0, self.noise_n, len(self.drives)).tolist() \
             if self.noise_n > 0.0 else [0.0] * len(self.drives)
         rated, npc = self.rated_force, self.n_per_count
@@ -376,11 +541,14 @@ class SimulatedBrace:
         for i, (d, fi) in enumerate(zip(self.drives, forces.tolist())):
             ov = self.load_cell_override[i]
             reading = fi + self.offset_n + noise[i] if ov is None else ov
+            if self.infeasible and ov is None:
+                reading = -rated if fi <= 0.0 else rated      # a cable overloaded / slack
             reading = min(max(reading, -rated), rated)       # saturation at full scale
             c = min(max(round(reading / npc), -32768), 32767)  # quantisation, INT16
             counts_l.append(c)
             d.load_cell_counts = c
-            d.force_n = fi
+            # rotary drives report the measured joint torque in 6077h (per mille of rated)
+            d.force_n = reading if self.rotary else fi
         counts = np.array(counts_l)
         self._time += dt
         self._sync_count += 1 if dt > 0 else 0
