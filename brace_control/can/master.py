@@ -257,7 +257,7 @@ class _Drive:
     rpdo_id: int
     sample: Sample | None = None
     checked: Sample | None = None          # last sample the monitors saw
-    history: deque = field(default_factory=lambda: deque(maxlen=6))   # (t, pos)
+    history: deque = field(default_factory=lambda: deque(maxlen=6))   # (t, pos, sync index)
     velocity: float = 0.0
     samples: int = 0
     rx_time: float = -math.inf             # perf_counter of the last TPDO
@@ -538,6 +538,7 @@ class BraceMaster:
 
     def _tpdo_callback(self, d: _Drive) -> Callable[[int, bytearray, float], None]:
         unpack = TPDO1.unpack_from
+        period = self.config.period
         to_si, force_si = self.scaling.to_si, self.scaling.force_to_si
 
         def on_tpdo(can_id: int, data: bytearray, timestamp: float) -> None:
@@ -553,9 +554,13 @@ class BraceMaster:
             self._tpdo_total += 1
             d.rx_total = self._tpdo_total
             h = d.history
-            h.append((t, p))
-            if len(h) >= 2 and h[-1][0] > h[0][0]:
-                d.velocity = (h[-1][1] - h[0][1]) / (h[-1][0] - h[0][0])
+            h.append((t, p, index))
+            # speed over the last few SYNCs, timed by the later of the SYNCs' send times and
+            # their count x period: a TPDO matched to a SYNC sent late or early (host
+            # stalls) must not turn into a speed the drive never had
+            dt = max(h[-1][0] - h[0][0], (h[-1][2] - h[0][2]) * period)
+            if len(h) >= 2 and dt > 0:
+                d.velocity = (h[-1][1] - h[0][1]) / dt
         return on_tpdo
 
     def _answered_sync(self, timestamp: float) -> tuple[int, float]:
