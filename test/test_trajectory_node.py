@@ -178,7 +178,7 @@ def test_platform_limits_of_the_wrong_length_fail_at_start_up(ros):
 
 def test_first_goal_starts_from_a_fresh_measured_pose_and_tracking_error_aborts(ros):
     from brace_control.nodes.trajectory_node import POSE_TOPIC
-    node, client, setpoints, status, goal_pub, _ = start(ros)
+    node, client, setpoints, status, goal_pub, _ = start(ros, **{'safety.tracking_latency': 0.1})
     measured_pub = client.create_publisher(PoseStamped, POSE_TOPIC, RELIABLE_10)
     ros.wait_matched(measured_pub)
     measured = HOME + [0.002, 0.001, 0.01]

@@ -93,7 +93,7 @@ SCHEMA: dict[str, Param] = {
     'safety.command_timeout': Param(0.015, 'no setpoint received for this long -> hold (s)', (0.001, 5.0), True),
     'safety.following_error_window': Param(0.003, 'following error window 6065h (m or rad)', (1e-6, 1.0), True),
     'safety.path_tolerance': Param(0.005, 'tracking error in actuator coordinates -> abort and hold (m or rad)', (1e-6, 1.0), True),
-    'safety.tracking_latency': Param(0.25, 'setpoint-to-measurement delay allowed by the tracking check (s)', (0.0, 5.0), True),
+    'safety.tracking_latency': Param(0.5, 'setpoint-to-measurement delay allowed by the tracking check (s)', (0.0, 5.0), True),
     'safety.step_margin': Param(0.0005, 'margin on |dq| per cycle (m or rad)', (0.0, 1.0), True),
     'safety.force_limit': Param(250.0, 'load-cell force / torque -> protective stop', (0.0, 1e5), True),
     'safety.saturation_fraction': Param(0.95, 'load-cell saturation threshold (of full scale)', (0.5, 1.0), True),
