@@ -34,13 +34,10 @@ from brace_control.config import load_device_config
 from brace_control.exercise import Goal
 from brace_control.mechanisms import mechanism_from_config
 from brace_control.mechanisms.spherical import euler_rate_matrix
-import rclpy
-from rclpy.context import Context
 
 from brace_control.bag import replay
-from brace_control.bringup import BringUp
 from brace_control.exercise import write_goal_bag
-from test_e2e import Probe, _channels, _extra_args
+from test_e2e import _channels, _extra_args, enabled_bring_up
 
 pytestmark = [pytest.mark.ros, pytest.mark.e2e, pytest.mark.slow]
 
@@ -104,19 +101,8 @@ def in_process(device_file):
     with the planner's path check on 50 samples instead of the YAML's 200: every node, the
     master and the simulator share one process and its GIL here, and checking 200 poses of
     the shoulder's or the continuum robot's IK takes 0.1-0.2 s of it at each goal."""
-    ctx = Context()
-    rclpy.init(context=ctx)
-    b = BringUp(device_file, context=ctx, extra_args=_extra_args() + [
-        '-p', 'trajectory.path_check_samples:=50']).start()
-    probe = Probe(b.helper)
-    try:
-        for what in ('home', 'enable'):
-            ok, msg = b.call(f'/can_driver_node/{what}', timeout=15)
-            assert ok, f'{what}: {msg}'
-        yield b, probe
-    finally:
-        b.shutdown()
-        rclpy.shutdown(context=ctx)
+    with enabled_bring_up(device_file, _extra_args() + ['-p', 'trajectory.path_check_samples:=50']) as running:
+        yield running
 
 
 def _resolution(cfg) -> float:

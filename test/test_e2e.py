@@ -19,6 +19,7 @@ Deliberate settings, all as ROS parameters on the command line:
 """
 from __future__ import annotations
 
+import contextlib
 import itertools
 import math
 import threading
@@ -267,11 +268,12 @@ def check_rejections(dev: Device, probe: Probe, goals: list[Goal]) -> None:
 
 # ----------------------------------------------------------------------------- one process
 
-@pytest.fixture
-def in_process(device_file):
+@contextlib.contextmanager
+def enabled_bring_up(device_file, extra_args):
+    """All nodes in this process on a private context, homed and enabled: (bring-up, probe)."""
     ctx = Context()
     rclpy.init(context=ctx)
-    b = BringUp(device_file, context=ctx, extra_args=_extra_args()).start()
+    b = BringUp(device_file, context=ctx, extra_args=extra_args).start()
     probe = Probe(b.helper)
     try:
         for what in ('home', 'enable'):
@@ -281,6 +283,12 @@ def in_process(device_file):
     finally:
         b.shutdown()
         rclpy.shutdown(context=ctx)
+
+
+@pytest.fixture
+def in_process(device_file):
+    with enabled_bring_up(device_file, _extra_args()) as running:
+        yield running
 
 
 def test_in_process_goals_reach_ik_lengths_within_limits_and_wrench(device_file, in_process, tmp_path):
