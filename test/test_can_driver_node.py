@@ -156,10 +156,10 @@ def test_executable_boots_and_exits_0_on_sigint(tmp_path):
             proc.kill()
 
 
-def test_bad_parameter_exits_1_naming_it(capsys):
+def test_bad_parameter_exits_2_naming_it(capsys):
     code = main(['can_driver_node', '--ros-args', '--params-file', str(LUMBAR_YAML),
                  '-p', 'safety.force_limit:=-5.0'])
-    assert code == 1
+    assert code == 2              # a configuration error, as for every node (runner.EXIT_CONFIG)
     assert 'safety.force_limit' in capsys.readouterr().err
 
 

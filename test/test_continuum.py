@@ -191,3 +191,26 @@ def test_branch_plot_tool_writes_the_figure(tmp_path):
     for name, sign in (('compression', 1), ('tension', -1)):
         assert cur[name]['y'][0] == pytest.approx(L / math.sqrt(2), abs=1e-9)
         assert sign * (cur[name]['y'][-1] - cur[name]['y'][0]) > 0
+
+
+def test_unloaded_slider_forces_are_the_bars_push_from_the_bvp(robot):
+    """With no load the sliders hold the bent bars: ``(-H, H)`` with ``H`` from the
+    independent boundary-value solution (the simulator adds these to the efforts that
+    balance the body, so the load cells read them)."""
+    for d in (0.05, 0.12, 0.17):
+        _, h_bvp, _ = bvp_weld(d)
+        f0 = robot.unloaded_forces([-d, d])
+        np.testing.assert_allclose(f0, [-h_bvp, h_bvp], rtol=1e-6)
+
+
+def test_scalar_and_vectorised_bar_ends_agree(robot):
+    """The per-call path (plain floats) and the vectorised reference, on both branches."""
+    from brace_control.mechanisms.continuum import PSI_TENSION, _bar_end_scalar
+    for psi in (PSI_COMPRESSION, PSI_TENSION):
+        kmin = abs(math.cos(psi / 2))
+        k = np.linspace(kmin + 1e-6, 0.999, 50)
+        xp, yp, force = bar_end(k, psi, L, EI)
+        got = np.array([_bar_end_scalar(float(v), psi, L, EI) for v in k])
+        np.testing.assert_allclose(got[:, 0], (xp - yp) / math.sqrt(2), rtol=1e-13, atol=1e-15)
+        np.testing.assert_allclose(got[:, 1], (xp + yp) / math.sqrt(2), rtol=1e-13, atol=1e-15)
+        np.testing.assert_allclose(got[:, 2], force, rtol=1e-13)

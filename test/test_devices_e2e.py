@@ -1,9 +1,10 @@
 """End to end on the simulated bus for the six devices beyond the lumbar brace.
 
 For each of ``neck_brace_2r``, ``neck_brace_3rrr``, ``neck_brace_4rpr``,
-``upper_limb_trainer``, ``shoulder`` and ``continuum``: every node in this process
-(``test_e2e``'s ``in_process`` fixture, here with the device file as ``device_file``), a
-bag of two reachable goals near the home pose replayed into ``/brace/pose_goal``, then:
+``upper_limb_trainer``, ``shoulder`` and ``continuum``: each node its own process, as
+``ros2 run`` starts them (``test_e2e.process_bring_up``, every safety limit as the YAML
+sets it), a bag of two reachable goals near the home pose replayed into
+``/brace/pose_goal``, then:
 
 * both goals succeed;
 * the drives end at the actuator values of the last goal within one encoder count + a
@@ -11,20 +12,19 @@ bag of two reachable goals near the home pose replayed into ``/brace/pose_goal``
   the test checks it against an independent constraint first: the forward kinematics of
   those actuator values has the goal among its assembly modes (and the four-bar's, the
   coupler point from the crank angle by the loop closure written out here);
+* the simulator's true actuator positions (``/brace/sim/joint_states``) are there too;
 * the published ``/brace/wrench`` equals the simulator's ground truth within 2 %: the
-  brace's wrench on the body ``-W_body = K (pose - rest)`` at rest, ``K`` and ``rest``
-  read from the YAML (generalised forces in the pose coordinates; the planar wrench is
-  published in the platform frame, the shoulder's as a moment in the platform frame).
+  brace's wrench on the body ``-W_body = K (pose - rest)`` at rest, at the simulator's
+  true pose (``/brace/sim/pose``), ``K`` and ``rest`` read from the YAML (generalised
+  forces in the pose coordinates; the planar wrench is published in the platform frame,
+  the shoulder's as a moment in the platform frame).
   The one-motor four-bar cannot hold a 2-D wrench: its motor holds the part of
   ``-W_body`` along the coupler curve (``J^T f``, ``J`` 1x2), the joints the rest; the
   test compares with that projection.
 """
 from __future__ import annotations
 
-import contextlib
 import math
-import time
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -37,7 +37,8 @@ from brace_control.mechanisms.spherical import euler_rate_matrix
 
 from brace_control.bag import replay
 from brace_control.exercise import write_goal_bag
-from test_e2e import _channels, _extra_args, enabled_bring_up
+from brace_control.nodes.msgs import pose_from_msg
+from test_e2e import _channels, _extra_args, process_bring_up
 
 pytestmark = [pytest.mark.ros, pytest.mark.e2e, pytest.mark.slow]
 
@@ -82,27 +83,12 @@ def _goals(name: str, cfg) -> list[tuple[float, ...]]:
 
 
 DEVICES = ['neck_brace_2r', 'neck_brace_3rrr', 'neck_brace_4rpr', 'upper_limb_trainer', 'shoulder',
-           pytest.param('continuum', marks=pytest.mark.xfail(
-               reason='known: in one process the elastica IK/FK (0.3-0.4 ms per call, in the IK, '
-                      'kinetics, driver and planner nodes and the simulator, all under one GIL) '
-                      'delays the setpoint stream; the slider lags and goal 1 aborts on tracking '
-                      '/ following error. Open: a faster continuum model or a per-process bring-up',
-               strict=False))]
+           'continuum']
 
 
 @pytest.fixture(params=DEVICES)
 def device_file(request) -> Path:
     return CONFIG / f'{request.param}.yaml'
-
-
-@contextlib.contextmanager
-def in_process(device_file):
-    """test_e2e's in-process bring-up (same arguments: own channel, Fitts' intercept 1 s),
-    with the planner's path check on 50 samples instead of the YAML's 200: every node, the
-    master and the simulator share one process and its GIL here, and checking 200 poses of
-    the shoulder's or the continuum robot's IK takes 0.1-0.2 s of it at each goal."""
-    with enabled_bring_up(device_file, _extra_args() + ['-p', 'trajectory.path_check_samples:=50']) as running:
-        yield running
 
 
 def _resolution(cfg) -> float:
@@ -123,24 +109,11 @@ def _published(msg, kind: str) -> np.ndarray:
 
 
 def test_device_goals_reach_ik_and_wrench_matches_truth(device_file, tmp_path):
-    """One retry in a fresh bring-up, reported as a warning: on this 2-core machine, with
-    the rest of the suite (and other work) running, the one-process stack at times misses
-    its 500 Hz deadlines (master heartbeat lost at the drives, timestamp-based overspeed);
-    every safety check stays on, and a second failure fails the test."""
-    try:
-        with in_process(device_file) as (b, probe):
-            _scenario(device_file, b, probe, tmp_path / 'a')
-    except (AssertionError, pytest.fail.Exception) as first:
-        if device_file.stem == 'continuum':          # known to fail (xfail): no retry
-            raise
-        warnings.warn(f'{device_file.stem}: first attempt failed, retrying once: '
-                      f'{str(first).splitlines()[0][:300]}')
-        with in_process(device_file) as (b, probe):
-            _scenario(device_file, b, probe, tmp_path / 'b')
+    with process_bring_up(device_file, _extra_args()) as (group, node, probe):
+        _scenario(device_file, node, probe, tmp_path)
 
 
-def _scenario(device_file: Path, b, probe, tmp_path: Path) -> None:
-    tmp_path.mkdir(parents=True, exist_ok=True)
+def _scenario(device_file: Path, node, probe, tmp_path: Path) -> None:
     name = device_file.stem
     cfg = load_device_config(device_file)
     mech = mechanism_from_config(cfg)
@@ -159,29 +132,28 @@ def _scenario(device_file: Path, b, probe, tmp_path: Path) -> None:
     bag = write_goal_bag(tmp_path / f'goals{next(_channels)}',
                          [Goal(0.2, goals[0], 'first'), Goal(2.8, goals[1], 'second')],
                          frame_id=str(cfg.get('base_frame')), storage='sqlite3', mechanism=mech)
-    replay(b.helper, bag, wait_subscribers=1)
-    probe.wait(lambda: [e['state'] for e in probe.terminal()] == ['succeeded'] * 2, 20,
+    replay(node, bag, wait_subscribers=1)
+    probe.wait(lambda: [e['state'] for e in probe.terminal()] == ['succeeded'] * 2, 30,
                f'both goals of {name} to succeed')
-    sim = b.node('can_driver_node').sim
 
     # drives at IK(goal): one encoder count + a CSP residue
     tol = _resolution(cfg) + 1e-6 * (1.0 if cfg['actuator'].get('kind') != 'rotary' else 10.0)
     probe.wait(lambda: probe.joints and np.max(np.abs(
         np.asarray(probe.joints[-1].position) - want)) <= tol, 5, 'drives at the IK values')
-    probe.wait(lambda: np.max(np.abs(sim.truth().lengths - want)) <= tol, 5,
-               'the simulated actuators at the IK values')
+    probe.wait(lambda: probe.sim_joints and np.max(np.abs(
+        np.asarray(probe.sim_joints[-1].position) - want)) <= tol, 5,
+        'the simulated actuators at the IK values')
 
-    # wrench: published (last 20 at rest) vs the body's stiffness about its rest pose
-    time.sleep(0.3)
+    # wrench: published (last 20 at rest) vs the body's stiffness about its true rest pose
+    probe.wait_fresh(probe.wrenches, 25, 5, 'wrenches at rest')
+    probe.wait_fresh(probe.sim_poses, 2, 5, 'true poses at rest')
     with probe.lock:
         ws = [_published(m, kind) for m in probe.wrenches[-20:]]
+        pose = pose_from_msg(probe.sim_poses[-1], mechanism=mech)
     got = np.mean(ws, axis=0)
-    truth = sim.truth()
-    pose = truth.pose
     K = np.asarray(cfg['sim']['stiffness'], float).reshape(mech.dof, mech.dof)
     rest = np.asarray(cfg['sim']['rest_pose'], float)
     brace = K @ (pose - rest)                     # -W_body at rest, independent of the sim
-    np.testing.assert_allclose(-truth.body_wrench, brace, rtol=1e-9, atol=1e-9)
     if name == 'upper_limb_trainer':
         J = np.asarray(mech.jacobian(pose), float)          # (1, 2): the motor's direction
         brace = J.T @ np.linalg.lstsq(J.T, brace, rcond=None)[0]

@@ -79,6 +79,12 @@ def test_rigid_physics_balances_the_body(device):
     if device == 'upper_limb_trainer':        # one motor: the part along the coupler curve
         proj = J.T @ np.linalg.lstsq(J.T, -t.body_wrench, rcond=None)[0]
         np.testing.assert_allclose(J.T @ t.forces, proj, atol=1e-9)
+    elif device == 'continuum':               # the sliders also hold the bent bars: (-H, H)
+        from test_continuum import bvp_weld
+        q = m.inverse(pose)
+        _, h, _ = bvp_weld(0.5 * (q[1] - q[0]))
+        np.testing.assert_allclose(J.T @ (t.forces - np.array([-h, h])), -t.body_wrench, atol=1e-6)
+        np.testing.assert_allclose(t.brace_wrench, -t.body_wrench, atol=1e-6)
     else:
         np.testing.assert_allclose(J.T @ t.forces, -t.body_wrench, atol=1e-9)
     if device == 'neck_brace_4rpr':

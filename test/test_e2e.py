@@ -139,13 +139,17 @@ class Probe:
         self.wrenches: list[WrenchStamped] = []
         self.poses: list[PoseStamped] = []
         self.joints: list[JointState] = []
+        self.sim_poses: list[PoseStamped] = []          # the simulator's ground truth
+        self.sim_joints: list[JointState] = []
         self.faults: list[str] = []
         node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 50)
         for typ, topic, box in ((JointState, '/brace/actuator_setpoint', self.setpoints),
                                 (DiagnosticStatus, '/brace/goal_status', self.statuses),
                                 (WrenchStamped, '/brace/wrench', self.wrenches),
                                 (PoseStamped, '/brace/pose', self.poses),
-                                (JointState, '/brace/joint_states', self.joints)):
+                                (JointState, '/brace/joint_states', self.joints),
+                                (PoseStamped, '/brace/sim/pose', self.sim_poses),
+                                (JointState, '/brace/sim/joint_states', self.sim_joints)):
             node.create_subscription(typ, topic, self._keep(box), RELIABLE_10
                                      if topic != '/brace/goal_status' else 50)
 
@@ -164,6 +168,12 @@ class Probe:
     def events(self) -> list[dict]:
         with self.lock:
             return [{kv.key: kv.value for kv in s.values} for s in self.statuses]
+
+    def wait_fresh(self, box: list, count: int, timeout: float, what: str) -> None:
+        """Wait until ``count`` more messages arrived in ``box`` (one of the lists above)."""
+        with self.lock:
+            start = len(box)
+        self.wait(lambda: len(box) >= start + count, timeout, f'{count} new {what}')
 
     def terminal(self) -> list[dict]:
         return [e for e in self.events() if e['state'] != 'accepted']
@@ -214,7 +224,7 @@ def check_step_limit(dev: Device, probe: Probe) -> None:
 
 def check_wrench(dev: Device, probe: Probe, *, truth=None) -> None:
     """The published wrench matches the simulated body's wrench within 2 %."""
-    time.sleep(0.3)                       # a few joint states at rest
+    probe.wait_fresh(probe.wrenches, 25, 5, 'wrenches at rest')
     with probe.lock:
         ws = list(probe.wrenches[-20:])
         pose_msg = probe.poses[-1]
@@ -321,9 +331,12 @@ def test_in_process_unreachable_and_nan_goals_are_rejected_without_motion(device
 
 # ----------------------------------------------------------------------------- processes
 
-@pytest.fixture
-def as_processes(device_file):
-    group = ProcessBringUp(device_file, extra_args=_extra_args()).start()
+@contextlib.contextmanager
+def process_bring_up(device_file, extra_args):
+    """Each node its own process (``ProcessBringUp``), homed and enabled, watched by a
+    probe node in this process: (process group, probe node, probe). Checks on exit that
+    no node process died and that each exited 0."""
+    group = ProcessBringUp(device_file, extra_args=extra_args).start()
     ctx = Context()
     rclpy.init(context=ctx)
     node = rclpy.create_node('e2e_probe', context=ctx)
@@ -349,6 +362,12 @@ def as_processes(device_file):
         node.destroy_node()
         rclpy.shutdown(context=ctx)
     assert all(c == 0 for c in codes.values()), codes
+
+
+@pytest.fixture
+def as_processes(device_file):
+    with process_bring_up(device_file, _extra_args()) as running:
+        yield running
 
 
 def test_processes_goals_reach_ik_lengths_within_limits_and_wrench(device_file, as_processes, tmp_path):

@@ -23,7 +23,7 @@ import yaml
 
 from brace_control.config import DeviceConfig, load_device_config
 from brace_control.sim import SimulatedBrace
-from rpr_oracles import R1, R2, lumbar_eq3
+from rpr_oracles import lumbar_eq3
 
 ROOT = Path(__file__).resolve().parent.parent
 CFG = ROOT / 'config' / 'lumbar_brace.yaml'

@@ -331,6 +331,8 @@ class BraceMaster:
         # (wall clock, perf_counter, index) of recent SYNCs: a TPDO is attributed to the
         # SYNC it answered by its bus timestamp, not by when our thread got to it
         self._sync_log: deque[tuple[float, float, int]] = deque(maxlen=128)
+        #: the most SYNCs a TPDO1 may answer late and still be counted (see _answered_sync)
+        self.attribution_window = 25
         self._tpdo_total = 0
         self._last_wake = 0.0
         self._grace_until = 0.0               # monotonic: after a host stall of this process
@@ -545,7 +547,8 @@ class BraceMaster:
             if len(data) < TPDO1.size:
                 return
             sw, pos, load = unpack(data)
-            index, t = self._answered_sync(timestamp)
+            prev = d.sample
+            index, t = self._answered_sync(timestamp, None if prev is None else prev.sync_index)
             p = to_si(pos)
             d.sample = Sample(sw, p, force_si(load), load, index, t)
             d.recent.append(d.sample)
@@ -563,8 +566,18 @@ class BraceMaster:
                 d.velocity = (h[-1][1] - h[0][1]) / dt
         return on_tpdo
 
-    def _answered_sync(self, timestamp: float) -> tuple[int, float]:
-        """(index, perf_counter) of the last SYNC sent before a frame's bus timestamp.
+    def _answered_sync(self, timestamp: float, previous: int | None = None) -> tuple[int, float]:
+        """(index, perf_counter) of the SYNC a drive's TPDO1 answers.
+
+        The bus timestamp bounds it from above: the last SYNC sent before the frame. A
+        drive answers every SYNC once and in order (transmission type 1), so the answer
+        after the one to SYNC ``previous`` is to ``previous + 1`` unless that bound is
+        lower. Counting matters when answers come late in a burst (a simulator or a
+        receive thread that did not run for a few periods): by timestamp alone, answers to
+        SYNCs n, n+1, n+2 sent together after SYNC n+2 would all be n+2, and positions
+        two periods apart would look simultaneous (a false overspeed). After a silence of
+        more than :attr:`attribution_window` SYNCs (a lost frame, a restart) the
+        timestamp alone decides again.
 
         Falls back to the latest SYNC when the interface's timestamps are not on the
         wall clock (hardware clocks).
@@ -572,10 +585,18 @@ class BraceMaster:
         if not self._sync_log or abs(timestamp - time.time()) > 0.5:
             return self._sync_index, self._sync_time
         log_ = tuple(self._sync_log)      # a C-level copy: the SYNC thread appends meanwhile
+        bound = None
         for wall, perf, index in reversed(log_):
             if wall <= timestamp:
-                return index, perf
-        return log_[0][2], log_[0][1]
+                bound = index, perf
+                break
+        if bound is None:
+            return log_[0][2], log_[0][1]
+        if previous is None or not 0 <= bound[0] - previous - 1 <= self.attribution_window:
+            return bound
+        index = previous + 1
+        first = log_[0][2]
+        return (index, log_[index - first][1]) if 0 <= index - first < len(log_) else bound
 
     def _heartbeat_callback(self, d: _Drive) -> Callable[[int, bytearray, float], None]:
         def on_heartbeat(can_id: int, data: bytearray, timestamp: float) -> None:

@@ -265,6 +265,15 @@ class MechanismBase:
         """The rest pose (from the YAML, or the model's default), within the actuator ranges."""
         return self._home.copy()
 
+    def unloaded_forces(self, q: Sequence[float]) -> np.ndarray:
+        """Actuator efforts that hold the mechanism with no external load at ``q``.
+
+        Zero for rigid links (gravity is not modelled); a mechanism with elastic members
+        (the continuum robot's bent bars) overrides it. The simulator adds it to the
+        efforts that balance the body's wrench.
+        """
+        return np.zeros(np.size(self._lo))
+
     # ------------------------------------------------------------------ singularity, workspace
     def _singularity_measure(self, pose: Sequence[float], **branch: Any) -> float:
         """The number compared with ``singularity_condition_max``: ``cond(J)`` by default."""

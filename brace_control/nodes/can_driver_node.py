@@ -19,7 +19,16 @@
 
 With ``can.sim: true`` the simulated brace (:mod:`brace_control.sim`) is started in this
 process on the same python-can channel before the master boots (a ``virtual`` bus only
-exists inside one process).
+exists inside one process), and its ground truth is published at ``sim.truth_rate_hz``
+(what a user compares an estimator or a controller against; nothing of the stack
+subscribes to it):
+
+* ``/brace/sim/joint_states`` (``JointState``): the true actuator positions, rates and
+  efforts (force N / torque N·m, before load-cell noise and quantisation);
+* ``/brace/sim/pose`` (``PoseStamped`` in ``base_frame``): the true platform pose;
+* ``/brace/sim/wrench`` (``WrenchStamped`` in ``platform_frame``): the wrench the brace
+  applies to the body, in ``/brace/wrench``'s convention (the mechanism's ``wrench`` of
+  the true pose and efforts).
 
 In-process use (one-process bring-up, tests)::
 
@@ -30,33 +39,32 @@ In-process use (one-process bring-up, tests)::
 from __future__ import annotations
 
 import math
-import signal
 import sys
 import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from ..can import (BraceMaster, DriverError, FaultKind, MasterConfig, MasterState, State402)
-from ..config import ConfigError
 from .msgs import MalformedMessage, joint_state, joint_state_arrays, stamp_to_ns
 from .params import declare_device_parameters
 
 __all__ = ['CanDriverNode', 'main', 'ACTUATOR_SETPOINT_TOPIC', 'JOINT_STATES_TOPIC',
-           'EXIT_STARTUP_ERROR']
+           'SIM_JOINT_STATES_TOPIC', 'SIM_POSE_TOPIC', 'SIM_WRENCH_TOPIC']
 
 ACTUATOR_SETPOINT_TOPIC = '/brace/actuator_setpoint'
 JOINT_STATES_TOPIC = '/brace/joint_states'
-EXIT_STARTUP_ERROR = 1
+SIM_JOINT_STATES_TOPIC = '/brace/sim/joint_states'
+SIM_POSE_TOPIC = '/brace/sim/pose'
+SIM_WRENCH_TOPIC = '/brace/sim/wrench'
 
 #: Setpoints: reliable depth 10, as ik_node publishes them (a dropped sample would be a
 #: double step for the step limit; the staleness check keeps a backlog from mattering).
@@ -149,6 +157,7 @@ class CanDriverNode(Node):
                                       eds=self.master_config.eds)
             self.get_logger().info(f'simulated brace on {self.master_config.interface}:'
                                    f'{self.master_config.channel}')
+            self._start_truth()
         try:
             self.master.boot()
         except DriverError:
@@ -158,6 +167,36 @@ class CanDriverNode(Node):
             f'{len(self.names)} drives OPERATIONAL (nodes {list(self.master_config.node_ids)}) on '
             f'{self.master_config.interface}:{self.master_config.channel}, SYNC '
             f'{self.master_config.sync_rate_hz:g} Hz; call ~/home then ~/enable')
+
+    def _start_truth(self) -> None:
+        """Publishers and timer of the simulator's ground truth (module docstring)."""
+        if self.mechanism is None:
+            return
+        from geometry_msgs.msg import PoseStamped, WrenchStamped
+
+        from .kinetics_node import platform_frame_wrench
+        from .msgs import pose_kind, pose_msg, wrench_msg
+        self._truth_pubs = (self.create_publisher(JointState, SIM_JOINT_STATES_TOPIC, STATE_QOS),
+                            self.create_publisher(PoseStamped, SIM_POSE_TOPIC, STATE_QOS),
+                            self.create_publisher(WrenchStamped, SIM_WRENCH_TOPIC, STATE_QOS))
+        kind = pose_kind(self.mechanism)
+        base, platform = self.cfg['base_frame'], self.cfg['platform_frame']
+
+        def publish() -> None:
+            truth = self.sim.truth()
+            stamp = self.get_clock().now().to_msg()
+            js_pub, pose_pub, wrench_pub = self._truth_pubs
+            js_pub.publish(joint_state(self.names, position=truth.lengths, velocity=truth.velocities,
+                                       effort=truth.forces, stamp=stamp))
+            pose_pub.publish(pose_msg(truth.pose, frame_id=base, stamp=stamp, mechanism=self.mechanism))
+            try:
+                w = np.asarray(self.mechanism.wrench(truth.pose, truth.forces), dtype=float)
+            except ValueError:                  # e.g. a pose the mechanism's statics rejects
+                return
+            wrench_pub.publish(wrench_msg(platform_frame_wrench(truth.pose, w, kind), frame_id=platform,
+                                          stamp=stamp, kind=kind))
+        self._truth_timer = self.create_timer(1.0 / float(self.cfg['sim']['truth_rate_hz']), publish,
+                                              callback_group=self._stream_group)
 
     def shutdown(self) -> None:
         """Disable the drives, stop SYNC, close the bus, stop the simulator. Idempotent."""
@@ -372,44 +411,15 @@ class _Refused(DriverError):
 
 
 def main(args: Sequence[str] | None = None) -> int:
-    """``ros2 run brace_control can_driver_node``; exit code 0, or 1 on a start-up error."""
-    from .runner import usage
-    argv = list(sys.argv if args is None else args)
-    user_args = argv[1:argv.index('--ros-args')] if '--ros-args' in argv else argv[1:]
-    if '-h' in user_args or '--help' in user_args:
-        print(usage('can_driver_node', 'CiA 402 drives of the brace on CAN (or the simulated '
-                    'brace), setpoints in, joint states out'))
-        return 0
-    try:
-        rclpy.init(args=argv)
-    except Exception as exc:  # noqa: BLE001 - bad --ros-args
-        print(f'can_driver_node: cannot start: {exc}', file=sys.stderr)
-        return EXIT_STARTUP_ERROR
-    signal.signal(signal.SIGTERM, lambda *_: rclpy.try_shutdown())
-    try:
-        node = CanDriverNode(boot=False)
-    except ConfigError as exc:
-        print(f'can_driver_node: configuration error: {exc}', file=sys.stderr)
-        rclpy.try_shutdown()
-        return EXIT_STARTUP_ERROR
+    """``ros2 run brace_control can_driver_node``; exit code 0, 1 when the bus or a drive
+    did not come up, 2 on a configuration error (:func:`~.runner.run_node`)."""
+    from .runner import run_node
     # 2 threads: services (blocking up to ~1 s) never delay the setpoint stream
-    executor = MultiThreadedExecutor(num_threads=2)
-    code = 0
-    try:
-        node.start()                        # Ctrl-C may come during boot: same clean exit
-        executor.add_node(node)
-        executor.spin()
-    except DriverError as exc:
-        print(f'can_driver_node: CAN start-up failed: {exc}', file=sys.stderr)
-        code = EXIT_STARTUP_ERROR
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.shutdown()
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+    return run_node(lambda: CanDriverNode(boot=False), executable='can_driver_node',
+                    summary='CiA 402 drives of the brace on CAN (or the simulated brace), '
+                            'setpoints in, joint states out',
+                    args=args, executor=lambda: MultiThreadedExecutor(num_threads=2),
+                    start=lambda node: node.start(), startup_errors=(DriverError,))
 
 
 if __name__ == '__main__':

@@ -2,7 +2,8 @@
 
 ``ros2 run brace_control ik_node --ros-args --params-file config/lumbar_brace.yaml``
 ends up in :func:`run_node`. Exit codes: 0 clean (Ctrl-C / SIGTERM / shutdown),
-2 configuration error (bad parameter file or value, message on stderr).
+1 start-up error of the device (``can_driver_node``: the CAN bus or a drive did not come
+up), 2 configuration error (bad parameter file or value, message on stderr).
 """
 from __future__ import annotations
 
@@ -12,13 +13,14 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
 from ..config import ConfigError
 
-__all__ = ['run_node', 'usage']
+__all__ = ['run_node', 'usage', 'EXIT_STARTUP', 'EXIT_CONFIG']
 
+EXIT_STARTUP = 1
 EXIT_CONFIG = 2
 
 
@@ -33,8 +35,19 @@ def usage(executable: str, summary: str) -> str:
 
 
 def run_node(factory: Callable[[], Node], *, executable: str, summary: str,
-             args: Sequence[str] | None = None) -> int:
-    """Init rclpy with ``args``, build the node, spin until shutdown; return the exit code."""
+             args: Sequence[str] | None = None,
+             executor: Callable[[], Executor] = SingleThreadedExecutor,
+             start: Callable[[Node], None] | None = None,
+             startup_errors: tuple[type[Exception], ...] = ()) -> int:
+    """Init rclpy with ``args``, build the node, spin until shutdown; return the exit code.
+
+    :param executor: builds the executor (a multi-threaded one for a node whose services
+        block).
+    :param start: called with the node before spinning (e.g. booting the drives); Ctrl-C
+        during it ends cleanly like Ctrl-C while spinning.
+    :param startup_errors: exceptions of ``start`` (or of spinning) that end the process
+        with :data:`EXIT_STARTUP` and their message on stderr.
+    """
     argv = list(sys.argv if args is None else args)
     user_args = argv[1:argv.index('--ros-args')] if '--ros-args' in argv else argv[1:]
     if '-h' in user_args or '--help' in user_args:
@@ -54,17 +67,29 @@ def run_node(factory: Callable[[], Node], *, executable: str, summary: str,
         print(f'{executable}: configuration error: {exc}', file=sys.stderr)
         rclpy.try_shutdown()
         return EXIT_CONFIG
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
+    spinner = executor()
+    code = 0
     try:
-        executor.spin()
+        if start is not None:
+            start(node)
+        spinner.add_node(node)
+        spinner.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except startup_errors as exc:
+        print(f'{executable}: start-up failed: {exc}', file=sys.stderr)
+        code = EXIT_STARTUP
+    except RuntimeError:
+        # rclpy under load: a message taken while the signal handler shuts the context
+        # down fails in the bindings ("Unable to convert call argument", seen also in
+        # ros/joint_state_publisher#117). A shutdown, not an error; anything else is.
+        if rclpy.ok():
+            raise
     finally:
         shutdown = getattr(node, 'shutdown', None)
         if callable(shutdown):
             shutdown()
-        executor.shutdown()
+        spinner.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
-    return 0
+    return code

@@ -262,6 +262,7 @@ class SimulatedBrace:
             self.host.add(d)
         self.lock = threading.Lock()
         self._pose = np.asarray(self.mechanism.home_pose, dtype=float).copy()
+        self._f_unloaded = np.zeros(n)             # efforts holding the mechanism itself (see _rigid)
         self._q_last = q0.copy()
         self._static: tuple[np.ndarray, ...] | None = None
         self._last_dynamic: tuple[np.ndarray, ...] | None = None
@@ -486,7 +487,8 @@ class SimulatedBrace:
         body's wrench ``W_body = -K (pose - rest) - D pose_dot`` (generalised forces
         conjugate to the pose coordinates, ``sim.stiffness``/``sim.damping`` dof x dof),
         the actuator efforts from ``J^T f = -W_body``: the least-squares (minimum-norm)
-        solution; for a cable 4-RPR the mechanism's tension distribution (``distribute``),
+        solution, plus the mechanism's :meth:`unloaded_forces` (the continuum robot's
+        bent bars push on the sliders with no load); for a cable 4-RPR the mechanism's tension distribution (``distribute``),
         and when no tension distribution exists :attr:`infeasible` says why (the load cells
         then read full scale). An under-actuated device (the one-motor four-bar) balances
         only the part of ``W_body`` its motor can: the rest is taken by its joints.
@@ -507,7 +509,11 @@ class SimulatedBrace:
             self.infeasible = dist.reason
             self.infeasible_count += 1
         f = np.linalg.lstsq(J.T, -w_body, rcond=None)[0]
-        return pose, J, w_body, f
+        # plus what holds the mechanism's own elastic members (the continuum robot's bars);
+        # a mechanism of the bare protocol (no MechanismBase) has none
+        unloaded = getattr(mech, 'unloaded_forces', None)
+        self._f_unloaded = np.zeros_like(f) if unloaded is None else np.asarray(unloaded(q), dtype=float)
+        return pose, J, w_body, f + self._f_unloaded
 
     def _physics(self, dt: float) -> BraceTruth:
         """Pose from lengths, body wrench, actuator forces, load-cell counts (see module doc)."""
@@ -552,5 +558,6 @@ class SimulatedBrace:
         counts = np.array(counts_l)
         self._time += dt
         self._sync_count += 1 if dt > 0 else 0
-        return BraceTruth(q, q_dot, pose.copy(), pose_dot, w_body, J.T @ forces, forces,
+        brace_wrench = J.T @ (forces - self._f_unloaded)     # the bars' own push is not on the body
+        return BraceTruth(q, q_dot, pose.copy(), pose_dot, w_body, brace_wrench, forces,
                           counts, self._sync_count, self._time)

@@ -577,7 +577,7 @@ class SimulatedDrive:
         entries, fmt = [], '<'
         for i in range(1, count + 1):
             raw = s.get((map_base + n, i), 0)
-            index, sub, bits = raw >> 16, (raw >> 8) & 0xFF, raw & 0xFF
+            index, sub = raw >> 16, (raw >> 8) & 0xFF        # low byte: the bit length
             var = self._var(index, sub)
             entries.append((index, sub))
             fmt += _STRUCT_CODE[var.data_type]
