@@ -183,6 +183,8 @@ class CanDriverNode(Node):
         base, platform = self.cfg['base_frame'], self.cfg['platform_frame']
 
         def publish() -> None:
+            if not self.context.ok():         # shutting down: the publishers are going
+                return
             truth = self.sim.truth()
             stamp = self.get_clock().now().to_msg()
             js_pub, pose_pub, wrench_pub = self._truth_pubs

@@ -29,8 +29,9 @@ Devices other than the planar 3-RPR (the neck braces, the four-bar trainer, the 
 the continuum robot): rigid and quasi-static, any mechanism through its protocol
 (:meth:`SimulatedBrace._rigid`): the pose from the actuator positions, ``W_body`` with
 ``sim.stiffness``/``sim.damping`` of size dof x dof, efforts from ``J^T f = -W_body`` by least
-squares, the cable 4-RPR's from its tension distribution (infeasible: the load cells read
-full scale). Rotary drives (``actuator.kind: rotary``): positions in rad (counts/rad =
+squares. The cable 4-RPR is compliant like the lumbar brace's legs, each cable pulling
+only: a cable pushed (paid out longer than its anchors' distance) goes slack, reads zero,
+and the platform settles on the taut ones (:meth:`SimulatedBrace._equilibrium`). Rotary drives (``actuator.kind: rotary``): positions in rad (counts/rad =
 ``encoder_counts_per_rev x gear_ratio / 2 pi``), the effort is the joint torque in 6077h
 (per mille of ``rated_current x torque_constant x gear_ratio``).
 
@@ -223,12 +224,15 @@ class SimulatedBrace:
         # the same mechanism with the stroke widened by 1 cm: inverse kinematics of the
         # rigid ring may leave the stroke by f / k at the end stops (physics only)
         mech_section = dict(cfg.section('mechanism'))
-        #: the 3-RPR brace: legs in series with a stiffness (see :meth:`_equilibrium`);
-        #: any other mechanism: rigid (see :meth:`_rigid`)
-        self.compliant = str(mech_section.get('type', '')) == 'rpr3'
+        #: a cable-driven mechanism (the 4-RPR neck brace): cables pull only, go slack
+        self.cable = getattr(self.mechanism, 'actuation', None) == 'cable'
+        #: the 3-RPR brace and cable mechanisms: legs / cables in series with a stiffness
+        #: (see :meth:`_equilibrium`); any other mechanism: rigid (see :meth:`_rigid`)
+        self.compliant = str(mech_section.get('type', '')) == 'rpr3' or self.cable
         if self.compliant:
-            mech_section['stroke_min'] = float(mech_section['stroke_min']) - 0.01
-            mech_section['stroke_max'] = float(mech_section['stroke_max']) + 0.01
+            for key, widen in (('stroke_min', -0.01), ('stroke_max', 0.01)):
+                widened = np.asarray(mech_section[key], dtype=float) + widen
+                mech_section[key] = widened.tolist() if widened.ndim else float(widened)
             self._phys_mech = mechanism_from_config({'mechanism': mech_section})
         else:
             self._phys_mech = self.mechanism
@@ -241,10 +245,8 @@ class SimulatedBrace:
         self._elapsed = 0.0
         if not self.compliant:
             self._rigid_cost(q0)
-        #: why the actuators cannot hold the body (4-RPR cables: no tension distribution
-        #: within [t_min, t_max]); '' when they can. The load cells then read full scale.
-        self.infeasible = ''
-        self.infeasible_count = 0
+        #: names of the cables that are slack after the last SYNC (compliant cables)
+        self.slack: tuple[str, ...] = ()
         self.drives: list[SimulatedDrive] = []
         for i, node_id in enumerate(self.node_ids):
             limits = DriveLimits(
@@ -347,35 +349,49 @@ class SimulatedBrace:
         return self._phys_mech.inverse(pose), self._phys_mech.jacobian(pose)
 
     def _equilibrium(self, q: np.ndarray, dt: float) -> tuple[np.ndarray, ...]:
-        """The ring's quasi-static equilibrium between the legs and the torso.
+        """The platform's quasi-static equilibrium between the legs (or cables) and the body.
 
         Each leg is the actuator (length ``q_i``) in series with a stiffness ``k``
-        (``sim.leg_stiffness``: load cell, straps, shells): ``f = k (q - L(pose))``, push
-        positive, ``L`` the leg lengths of the rigid ring (inverse kinematics). Solve
-        ``R(pose) = J^T f + W_body = 0``, ``W_body = -K (pose - rest) - D (pose - pose_prev) / dt``
-        by Newton from the previous pose (the branch continuous with it, as
-        ``forward_nearest``), with ``dR/dpose ~ -(J^T k J + K + D/dt)``. As ``k -> inf`` the
-        pose tends to ``forward_nearest(q, pose_prev)``; a finite ``k`` keeps the forces
-        bounded near the singular poses of the brace (theta = 0), where a rigid model's
-        ``J^T f = -W_body`` has no bounded solution.
+        (``sim.leg_stiffness``: load cell, straps, shells, or the cable and its drum):
+        ``f = k (q - L(pose))``, push positive, ``L`` the leg lengths of the rigid
+        platform (inverse kinematics). A cable only pulls: ``f = min(0, k (q - L))``; a
+        cable whose paid-out length exceeds the distance between its anchors is slack
+        (``f = 0``, listed in :attr:`slack`), and the platform settles where the taut
+        ones and the body balance. Solve ``R(pose) = J^T f + W_body = 0``,
+        ``W_body = -K (pose - rest) - D (pose - pose_prev) / dt`` by Newton from the
+        previous pose (the branch continuous with it, as ``forward_nearest``), with
+        ``dR/dpose ~ -(J_t^T k J_t + K + D/dt)``, ``J_t`` the rows of the taut legs. As
+        ``k -> inf`` the pose tends to ``forward_nearest(q, pose_prev)``; a finite ``k``
+        keeps the forces bounded near the singular poses of the brace (theta = 0), where a
+        rigid model's ``J^T f = -W_body`` has no bounded solution.
 
         :returns: ``pose, J(pose), W_body, f`` with ``J^T f = -W_body`` to ``equilibrium_tol``.
         """
         if self._legs is not None:
             return self._equilibrium_floats(q, dt)
         k = self.leg_stiffness
-        c = self.damping / dt if dt > 0 else np.zeros((3, 3))
+        dof = self.dof
+        c = self.damping / dt if dt > 0 else np.zeros((dof, dof))
         prev = self._pose
         pose = prev.copy()
-        for _ in range(20):
+        for _ in range(30):
             lengths, J = self._kinematics(pose)
+            J = np.asarray(J, dtype=float)
             f = k * (q - lengths)
+            taut = np.ones(len(f), dtype=bool)
+            if self.cable:
+                taut = f < 0.0
+                f = np.where(taut, f, 0.0)
             w_body = -self.stiffness @ (pose - self.rest_pose) - c @ (pose - prev)
             r = J.T @ f + w_body
             if float(np.max(np.abs(r))) <= self.equilibrium_tol:
-                return pose, J, w_body, f
-            pose = pose + np.linalg.solve(k * (J.T @ J) + self.stiffness + c, r)
-        self.equilibrium_failures += 1
+                break
+            Jt = J[taut]
+            pose = pose + np.linalg.solve(k * (Jt.T @ Jt) + self.stiffness + c, r)
+        else:
+            self.equilibrium_failures += 1
+        if self.cable:
+            self.slack = tuple(n for n, t in zip(self.mechanism.actuator_names, taut) if not t)
         return pose, J, w_body, f
 
     def _equilibrium_floats(self, q: np.ndarray, dt: float) -> tuple[np.ndarray, ...]:
@@ -443,8 +459,6 @@ class SimulatedBrace:
                 else:
                     mech.forward_nearest(q0, home)
                     mech.jacobian(home)
-                if getattr(mech, 'actuation', None) == 'cable' and hasattr(mech, 'distribute'):
-                    mech.distribute(home, np.zeros(mech.dof))
         except ValueError:
             pass
         cost = (_time.perf_counter() - t0) / 3.0
@@ -488,9 +502,8 @@ class SimulatedBrace:
         conjugate to the pose coordinates, ``sim.stiffness``/``sim.damping`` dof x dof),
         the actuator efforts from ``J^T f = -W_body``: the least-squares (minimum-norm)
         solution, plus the mechanism's :meth:`unloaded_forces` (the continuum robot's
-        bent bars push on the sliders with no load); for a cable 4-RPR the mechanism's tension distribution (``distribute``),
-        and when no tension distribution exists :attr:`infeasible` says why (the load cells
-        then read full scale). An under-actuated device (the one-motor four-bar) balances
+        bent bars push on the sliders with no load). (Cables are compliant, see
+        :meth:`_equilibrium`.) An under-actuated device (the one-motor four-bar) balances
         only the part of ``W_body`` its motor can: the rest is taken by its joints.
 
         :returns: ``pose, J(pose), W_body, f``.
@@ -501,13 +514,6 @@ class SimulatedBrace:
         w_body = -self.stiffness @ (pose - self.rest_pose) - self.damping @ pose_dot
         if J is None:
             J = np.asarray(mech.jacobian(pose), dtype=float)
-        self.infeasible = ''
-        if getattr(mech, 'actuation', None) == 'cable' and hasattr(mech, 'distribute'):
-            dist = mech.distribute(pose, -w_body)
-            if dist.feasible:
-                return pose, J, w_body, np.asarray(dist.forces, dtype=float)
-            self.infeasible = dist.reason
-            self.infeasible_count += 1
         f = np.linalg.lstsq(J.T, -w_body, rcond=None)[0]
         # plus what holds the mechanism's own elastic members (the continuum robot's bars);
         # a mechanism of the bare protocol (no MechanismBase) has none
@@ -547,8 +553,6 @@ class SimulatedBrace:
         for i, (d, fi) in enumerate(zip(self.drives, forces.tolist())):
             ov = self.load_cell_override[i]
             reading = fi + self.offset_n + noise[i] if ov is None else ov
-            if self.infeasible and ov is None:
-                reading = -rated if fi <= 0.0 else rated      # a cable overloaded / slack
             reading = min(max(reading, -rated), rated)       # saturation at full scale
             c = min(max(round(reading / npc), -32768), 32767)  # quantisation, INT16
             counts_l.append(c)
