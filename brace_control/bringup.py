@@ -48,8 +48,8 @@ from typing import Any
 
 from .config import ConfigError, load_device_config, resolve_device_file
 
-__all__ = ['NODE_NAMES', 'BringUp', 'ProcessBringUp', 'node_class', 'find_executable',
-           'disable_drives', 'main']
+__all__ = ['NODE_NAMES', 'STACK_LINKS', 'BringUp', 'ProcessBringUp', 'node_class', 'find_executable',
+           'disable_drives', 'missing_links', 'wait_for_links', 'main']
 
 #: the nodes of a device, in data-flow order
 NODE_NAMES = ('trajectory_node', 'ik_node', 'can_driver_node', 'kinetics_node')
@@ -108,6 +108,45 @@ def call_trigger(node: Any, service: str, *, timeout: float = 5.0,
         return bool(res.success), str(res.message)
     finally:
         node.destroy_client(client)
+
+
+#: the stack's topic links: (topic, publishing node, subscribing node)
+STACK_LINKS = (('/brace/pose_setpoint', 'trajectory_node', 'ik_node'),
+               ('/brace/actuator_setpoint', 'ik_node', 'can_driver_node'),
+               ('/brace/joint_states', 'can_driver_node', 'kinetics_node'),
+               ('/brace/pose', 'kinetics_node', 'trajectory_node'))
+
+
+def missing_links(node: Any, nodes: Sequence[str] = NODE_NAMES) -> list[str]:
+    """The links of :data:`STACK_LINKS` between ``nodes`` that ``node`` does not yet see in
+    the ROS graph (``'topic: publisher -> subscriber'``); ``[]`` when all are there."""
+    out = []
+    for topic, pub, sub in STACK_LINKS:
+        if pub not in nodes or sub not in nodes:
+            continue
+        pubs = {i.node_name for i in node.get_publishers_info_by_topic(topic)}
+        subs = {i.node_name for i in node.get_subscriptions_info_by_topic(topic)}
+        if pub not in pubs or sub not in subs:
+            out.append(f'{topic}: {pub} -> {sub}')
+    return out
+
+
+def wait_for_links(node: Any, *, timeout: float = 20.0, nodes: Sequence[str] = NODE_NAMES) -> None:
+    """Wait until ``node`` sees every link of the stack in the graph.
+
+    Nodes started as separate processes find each other by DDS discovery, which takes
+    from milliseconds to seconds on a loaded host. A goal sent before the IK node's
+    setpoints reach the driver starts a motion the drives do not follow; the first
+    setpoint that does arrive is then a jump, and the driver's step limit stops the
+    brace (SAFETY.md 7). Send goals after this returns.
+
+    :raises TimeoutError: a link still missing after ``timeout`` s (named).
+    """
+    deadline = time.monotonic() + timeout
+    while missing := missing_links(node, nodes):
+        if time.monotonic() > deadline:
+            raise TimeoutError(f'the stack is not connected after {timeout} s: missing {missing}')
+        time.sleep(0.05)
 
 
 def disable_drives(node: Any, *, timeout: float = 5.0, executor: Any = None) -> tuple[bool, str]:

@@ -207,7 +207,7 @@ def run_demo(device: str, out: Path, *, rate: float = 1.0, settle: float = 3.0,
     from rclpy.signals import SignalHandlerOptions
 
     from .bag import BagError, replay
-    from .bringup import BringUp, ProcessBringUp, call_trigger, disable_drives
+    from .bringup import BringUp, ProcessBringUp, call_trigger, disable_drives, wait_for_links
     from .demo_report import plot_run, read_run, summarise
     from .exercise import build_exercise_bag
 
@@ -262,6 +262,7 @@ def run_demo(device: str, out: Path, *, rate: float = 1.0, settle: float = 3.0,
             print(f'{what}: {"ok" if ok else "FAILED"} {msg}')
             if not ok:
                 raise RuntimeError(f'{services[what]} failed: {msg}')
+        wait_for_links(node, timeout=30.0)     # the node processes have found each other
         stats = replay(node, bag, rate=rate, wait_subscribers=1, wait_topics=['/brace/pose_goal'],
                        stop=stop, progress=_Progress(watch, goals))
         print()

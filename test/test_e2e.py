@@ -36,7 +36,7 @@ from rclpy.executors import SingleThreadedExecutor
 from sensor_msgs.msg import JointState
 
 from brace_control.bag import replay
-from brace_control.bringup import BringUp, ProcessBringUp, call_trigger
+from brace_control.bringup import BringUp, ProcessBringUp, call_trigger, wait_for_links
 from brace_control.config import load_device_config
 from brace_control.demo import prepare_config
 from brace_control.exercise import Goal, write_goal_bag
@@ -142,6 +142,7 @@ class Probe:
         self.sim_poses: list[PoseStamped] = []          # the simulator's ground truth
         self.sim_joints: list[JointState] = []
         self.faults: list[str] = []
+        self.cycle = ''                                # the driver's last SYNC cycle status
         node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 50)
         for typ, topic, box in ((JointState, '/brace/actuator_setpoint', self.setpoints),
                                 (DiagnosticStatus, '/brace/goal_status', self.statuses),
@@ -155,6 +156,8 @@ class Probe:
 
     def _on_diagnostics(self, msg) -> None:
         for st in msg.status:
+            if st.name.endswith('/cycle'):         # the SYNC cycle: told on a failure
+                self.cycle = f'{st.message} ({", ".join(f"{kv.key} {kv.value}" for kv in st.values)})'
             if st.name.endswith('/safety') and st.level >= DiagnosticStatus.ERROR \
                     and st.message not in self.faults:
                 self.faults.append(st.message)
@@ -185,7 +188,8 @@ class Probe:
                 last = list(self.joints[-1].position) if self.joints else None
                 pytest.fail(f'timed out after {timeout} s waiting for {what}; goal events: '
                             f'{[(e["goal_id"], e["state"], e["reason"]) for e in self.events()]}; '
-                            f'last joint positions {last}; driver faults {self.faults}')
+                            f'last joint positions {last}; driver faults {self.faults}; '
+                            f'SYNC cycle: {self.cycle}')
             time.sleep(0.02)
 
 
@@ -354,6 +358,7 @@ def process_bring_up(device_file, extra_args):
                     break
                 time.sleep(0.2)
             assert ok, f'{what}: {msg}; ended: {group.failed()}'
+        wait_for_links(node, timeout=30)      # DDS discovery between the node processes
         yield group, node, probe
         assert not group.failed(), f'a node process died: {group.failed()}'
     finally:

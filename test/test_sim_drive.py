@@ -6,6 +6,8 @@ condition with a timeout. Oracles: CiA 301/402 and docs/can.md, not the simulato
 """
 from __future__ import annotations
 
+import copy
+
 import itertools
 import os
 import struct
@@ -18,6 +20,7 @@ import can
 import canopen
 import pytest
 
+from brace_control.config import DeviceConfig, load_device_config
 from brace_control.sim import SimulatedBrace
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -78,7 +81,11 @@ class Rig:
         self.net.connect(interface='virtual', channel=self.channel)
         self.rec = Recorder()
         self.net.notifier.add_listener(self.rec)
-        self.sim = SimulatedBrace(CFG, channel=self.channel)
+        # the drive exactly as the YAML's actuator rates it: these tests check the drive's
+        # own acceleration limit (the simulator's default motors are 10x faster)
+        params = copy.deepcopy(dict(load_device_config(CFG)))
+        params['sim']['drive_acceleration_factor'] = 1.0
+        self.sim = SimulatedBrace(DeviceConfig(params, CFG.resolve()), channel=self.channel)
         self.nodes: dict[int, canopen.BaseNode402] = {}
 
     def node(self, node_id: int) -> canopen.BaseNode402:

@@ -904,8 +904,11 @@ class BraceMaster:
                 self._last_sp_seq = sp.seq
                 return
             dt = max(dt, self.config.period)
+            basis = 'between stamps'
         else:
             dt = min(max(sp.time - self._last_sp_time, self.config.period), limits.command_timeout)
+            basis = ('since the last setpoint\'s arrival' if self._last_sp_stamp is not None or sp.stamp is None
+                     else 'the first stamped setpoint since enable, from the position held')
         if not self._was_fresh:
             self.supervisor.unwarn('setpoint')
             self._was_fresh = True
@@ -914,7 +917,7 @@ class BraceMaster:
             cause = check_step(d.name, self.scaling.to_si(current), float(sp.position[d.index]),
                                dt, limits, d.index)
             if cause:
-                self.supervisor.report(FaultKind.STEP_LIMIT, f'setpoint rejected: {cause}',
+                self.supervisor.report(FaultKind.STEP_LIMIT, f'setpoint rejected: {cause}; time {basis}',
                                        drive=d.name, still_present=self._step_condition)
                 return
         for d in self._drives:

@@ -107,6 +107,7 @@ SCHEMA: dict[str, Param] = {
     'sim.load_cell_noise': Param(0.05, 'load-cell noise std (N)', (0.0, 1e3), True),
     'sim.load_cell_offset': Param(0.0, 'load-cell offset (N)', (-1e3, 1e3), True),
     'sim.seed': Param(1, 'random seed of the simulator', (0, 2**31 - 1), True),
+    'sim.drive_acceleration_factor': Param(10.0, "simulated motors' acceleration capability, x actuator.max_acceleration", (1.0, 1000.0), True),
     'sim.truth_rate_hz': Param(20.0, 'rate of the ground-truth topics /brace/sim/* (Hz)', (0.1, 1000.0), True),
 }
 

@@ -248,10 +248,15 @@ class SimulatedBrace:
         #: names of the cables that are slack after the last SYNC (compliant cables)
         self.slack: tuple[str, ...] = ()
         self.drives: list[SimulatedDrive] = []
+        # actuator.max_acceleration is the planning limit; a motor in CSP follows a target
+        # that steps in speed (the master's v_max ramp after a setpoint gap) much faster
+        accel_factor = float(sim.get('drive_acceleration_factor', 10.0))
+        if not (math.isfinite(accel_factor) and accel_factor >= 1.0):
+            raise ConfigError(f'sim.drive_acceleration_factor: expected >= 1, got {accel_factor!r}')
         for i, node_id in enumerate(self.node_ids):
             limits = DriveLimits(
                 counts_per_m=self.counts_per_m, max_velocity=float(act['max_velocity']),
-                max_acceleration=float(act['max_acceleration']),
+                max_acceleration=float(act['max_acceleration']) * accel_factor,
                 stroke_min=float(lo[i]), stroke_max=float(hi[i]),
                 # 6077h torque actual is in per mille of this (rotary: the rated torque)
                 max_force=self.rated_force if self.rotary else float(act.get('max_force', 250.0)))
