@@ -270,6 +270,7 @@ class _Drive:
     target: int = 0                        # counts, sent in RPDO1
     goal: int | None = None                # counts of the last accepted setpoint (target ramps to it)
     recent: deque = field(default_factory=lambda: deque(maxlen=16))  # Samples, by SYNC
+    sent: deque = field(default_factory=lambda: deque(maxlen=64))    # (SYNC index, target counts)
     reset_phase: bool = False
     flagged: bool = False                  # warning / internal-limit bit seen last sample
 
@@ -780,6 +781,7 @@ class BraceMaster:
             msg = can.Message(arbitration_id=d.rpdo_id, data=RPDO1.pack(cw, d.target),
                               is_extended_id=False)
             self._send(msg)
+            d.sent.append((self._sync_index + 1, d.target))     # for the SYNC sent next
         # the TPDOs answering this SYNC may arrive before send() returns: stamp first
         self._sync_time = time.perf_counter()
         self._sync_index += 1
@@ -852,7 +854,7 @@ class BraceMaster:
                     self.supervisor.warn(f'{name}.limit', f'{name}: internal limit active ({sw:04X}h)')
                 else:
                     self.supervisor.unwarn(f'{name}.limit')
-            commanded = (self.scaling.to_si(d.target)
+            commanded = (self.scaling.to_si(self._commanded_for(d, s))
                          if tracking and decode_state(sw) is State402.OPERATION_ENABLED else None)
             for kind, cause in check_sample(d.checked, s, limits, commanded=commanded):
                 self.supervisor.report(kind, cause, drive=name,
@@ -866,6 +868,25 @@ class BraceMaster:
                     f'{limits.speed_factor:g} x {limits.v_max * 1e3:.1f} mm/s', drive=name,
                     still_present=lambda d=d: abs(d.velocity) > self.limits.speed_factor * self.limits.v_max)
             d.checked = s
+
+    def _commanded_for(self, d: _Drive, s: Sample) -> int:
+        """The target (counts) a sample is judged against: of the targets sent from two SYNCs
+        before the one it answers up to now, the one nearest to its position.
+
+        A drive answers SYNC k with where it was after following the targets up to SYNC
+        k - 1; an answer that arrives late (a loaded host, a simulator in the same process)
+        must not be judged against targets sent after it was sampled: with a fast actuator
+        one SYNC of the target ramp (v_max x period) can exceed the path tolerance.
+        Without a record (before the first SYNC of tracking) the current target.
+        """
+        pos = self.scaling.to_counts(s.position)
+        best = None
+        for index, target in reversed(tuple(d.sent)):     # a C-level copy: the SYNC thread appends
+            if index < s.sync_index - 2:
+                break
+            if best is None or abs(target - pos) < abs(best - pos):
+                best = target
+        return d.target if best is None else best
 
     def _apply_setpoint(self, t_wake: float) -> None:
         """Latest setpoint → goals, step-limited (SAFETY 7); stale → hold and report (SAFETY 1).
