@@ -318,6 +318,8 @@ class BraceMaster:
         self._tracking = False                 # targets follow setpoints
         self._setpoint: _Setpoint | None = None
         self._setpoint_seq = 0
+        self._seq_at_enable = 0                # setpoint count and stale holds when enabled
+        self._holds_at_enable = 0
         self._last_sp_seq = 0
         self._last_sp_time = -math.inf
         self._last_sp_stamp: float | None = None
@@ -928,8 +930,14 @@ class BraceMaster:
             basis = 'between stamps'
         else:
             dt = min(max(sp.time - self._last_sp_time, self.config.period), limits.command_timeout)
-            basis = ('since the last setpoint\'s arrival' if self._last_sp_stamp is not None or sp.stamp is None
-                     else 'the first stamped setpoint since enable, from the position held')
+            if self._last_sp_stamp is not None or sp.stamp is None:
+                basis = 'since the last setpoint\'s arrival'
+            else:
+                # what came before tells a late stream from a starved cycle
+                basis = (f'the first stamped setpoint since enable, from the position held; '
+                         f'{sp.seq - self._seq_at_enable - 1} setpoints had arrived since enable '
+                         f'without being fresh at a SYNC, {self.stale_setpoint_holds - self._holds_at_enable} '
+                         f'stale holds')
         if not self._was_fresh:
             self.supervisor.unwarn('setpoint')
             self._was_fresh = True
@@ -1029,7 +1037,8 @@ class BraceMaster:
             self._desired = State402.OPERATION_ENABLED
             self._wait(lambda: self._all_in(State402.OPERATION_ENABLED), timeout=timeout,
                        what='OPERATION ENABLED')
-            self._last_sp_seq = self._setpoint_seq
+            self._last_sp_seq = self._seq_at_enable = self._setpoint_seq
+            self._holds_at_enable = self.stale_setpoint_holds
             self._tracking = True
             self.state = MasterState.ENABLED
 
