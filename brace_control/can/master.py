@@ -271,6 +271,9 @@ class _Drive:
     goal: int | None = None                # counts of the last accepted setpoint (target ramps to it)
     recent: deque = field(default_factory=lambda: deque(maxlen=16))  # Samples, by SYNC
     sent: deque = field(default_factory=lambda: deque(maxlen=64))    # (SYNC index, target counts)
+    target_f: float = 0.0                  # the ramp's target before rounding (counts)
+    ramp_v: float = 0.0                    # the ramp's speed (counts per SYNC)
+    goal_v: float = 0.0                    # the setpoint stream's speed (counts per SYNC)
     reset_phase: bool = False
     flagged: bool = False                  # warning / internal-limit bit seen last sample
 
@@ -297,6 +300,8 @@ class BraceMaster:
         self.limits = config.limits
         # per-cycle bound on the RPDO target's change (counts): v_max for one SYNC period
         self._ramp_counts = max(1, math.ceil(self.limits.v_max * config.period * self.scaling.counts_per_unit))
+        # ... and on its change: a_max for one SYNC period (counts per SYNC^2)
+        self._ramp_acc = max(self.limits.a_max * config.period ** 2 * self.scaling.counts_per_unit, 1e-6)
         self.supervisor = Supervisor(on_fault=self._on_fault)
         self.stats = PeriodStats(config.period)
         self._own_bus = bus is None
@@ -898,8 +903,7 @@ class BraceMaster:
         The step limit compares a setpoint with the previous accepted one over the time
         between their stamps (the sender's sample instants), so bunched or delayed
         deliveries do not look like fast motion; unstamped setpoints use the time between
-        arrivals. Each cycle then moves the RPDO target towards the goal by at most
-        ``v_max · period``: a CSP drive never sees a target jump, also after a hold.
+        arrivals. Each cycle then moves the RPDO target towards the goal (:meth:`_ramp`).
         """
         sp = self._setpoint
         limits = self.limits
@@ -909,15 +913,37 @@ class BraceMaster:
                 self.stale_setpoint_holds += 1
                 self.supervisor.warn('setpoint', 'setpoints stale (none for safety.command_timeout '
                                      f'= {limits.command_timeout * 1e3:.0f} ms): holding position')
-            return
-        if sp.seq != self._last_sp_seq:
+            for d in self._drives:
+                d.goal_v = 0.0                 # brake to the last setpoint and hold it there
+        elif sp.seq != self._last_sp_seq:
             self._accept_setpoint(sp)
             if self.supervisor.latched:
                 return
-        step = self._ramp_counts
+        self._ramp()
+
+    def _ramp(self) -> None:
+        """Move each RPDO target towards its goal within ``v_max`` and ``a_max`` per SYNC.
+
+        The target follows the setpoint stream's speed (``goal_v``) plus a correction that
+        can still brake onto the goal (``v <= sqrt(2 a e)`` in discrete steps), with its
+        speed changing by at most ``a_max · period`` per SYNC: a CSP drive sees neither a
+        position nor a speed step, also when the stream resumes after a gap or stops.
+        """
+        a, vmax = self._ramp_acc, float(self._ramp_counts)
         for d in self._drives:
-            if d.goal is not None and d.goal != d.target:
-                d.target += max(-step, min(step, d.goal - d.target))
+            if d.goal is None:
+                d.ramp_v, d.target_f = 0.0, float(d.target)
+                continue
+            tf = d.target_f if abs(d.target_f - d.target) < 1.0 else float(d.target)
+            e = d.goal - tf
+            if abs(e) < 0.5 and abs(d.ramp_v - d.goal_v) <= a:
+                tf, v = float(d.goal), d.goal_v
+            else:
+                brake = a * (math.sqrt(0.25 + 2.0 * abs(e) / a) - 0.5)
+                v_des = max(-vmax, min(vmax, d.goal_v + math.copysign(min(brake, abs(e)), e)))
+                v = max(d.ramp_v - a, min(d.ramp_v + a, v_des))
+                tf += v
+            d.ramp_v, d.target_f, d.target = v, tf, round(tf)
 
     def _accept_setpoint(self, sp: _Setpoint) -> None:
         limits = self.limits
@@ -949,8 +975,12 @@ class BraceMaster:
                 self.supervisor.report(FaultKind.STEP_LIMIT, f'setpoint rejected: {cause}; time {basis}',
                                        drive=d.name, still_present=self._step_condition)
                 return
+        steps = max(dt / self.config.period, 1.0)
+        vmax = float(self._ramp_counts)
         for d in self._drives:
-            d.goal = self.scaling.to_counts(float(sp.position[d.index]))
+            goal = self.scaling.to_counts(float(sp.position[d.index]))
+            d.goal_v = 0.0 if d.goal is None else max(-vmax, min(vmax, (goal - d.goal) / steps))
+            d.goal = goal
         self._last_sp_seq = sp.seq
         self._last_sp_time = sp.time
         self._last_sp_stamp = sp.stamp
