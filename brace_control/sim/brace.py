@@ -31,7 +31,8 @@ the continuum robot): rigid and quasi-static, any mechanism through its protocol
 ``sim.stiffness``/``sim.damping`` of size dof x dof, efforts from ``J^T f = -W_body`` by least
 squares. The cable 4-RPR is compliant like the lumbar brace's legs, each cable pulling
 only: a cable pushed (paid out longer than its anchors' distance) goes slack, reads zero,
-and the platform settles on the taut ones (:meth:`SimulatedBrace._equilibrium`). Rotary drives (``actuator.kind: rotary``): positions in rad (counts/rad =
+and the platform settles on the taut ones (:meth:`SimulatedBrace._equilibrium`). Rotary
+drives (``actuator.kind: rotary``): positions in rad (counts/rad =
 ``encoder_counts_per_rev x gear_ratio / 2 pi``), the effort is the joint torque in 6077h
 (per mille of ``rated_current x torque_constant x gear_ratio``).
 
@@ -248,8 +249,9 @@ class SimulatedBrace:
         #: names of the cables that are slack after the last SYNC (compliant cables)
         self.slack: tuple[str, ...] = ()
         self.drives: list[SimulatedDrive] = []
-        # actuator.max_acceleration is the planning limit; a motor in CSP follows a target
-        # that steps in speed (the master's v_max ramp after a setpoint gap) much faster
+        # the simulated drive brakes towards its latched target without velocity
+        # feed-forward: at the rated acceleration it would lag a moving target by v^2 / 2a
+        # (docs/can.md); the bundled YAMLs give it 10x the planning acceleration
         accel_factor = float(sim.get('drive_acceleration_factor', 10.0))
         if not (math.isfinite(accel_factor) and accel_factor >= 1.0):
             raise ConfigError(f'sim.drive_acceleration_factor: expected >= 1, got {accel_factor!r}')
