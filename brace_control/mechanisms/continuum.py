@@ -269,8 +269,13 @@ class Continuum2(MechanismBase):
             self._ends[psi] = (float(k_end), float(de), float(ye))  # type: ignore[assignment]
             # the bracket table of _solve_branch: k from just above k_min to k_end, with
             # d and y oriented increasing (bisect needs ascending values)
-            kt = np.concatenate([[kmin * (1.0 + 1e-15)], k[k < k_end], [k_end]])
-            dt, yt, _ = self._branch_end(kt, psi)
+            # (the grid's d and y above, plus the two ends)
+            k0 = kmin * (1.0 + 1e-15)
+            d0, y0, _ = _bar_end_scalar(k0, psi, self.length, self.ei)
+            keep = k < k_end
+            kt = np.concatenate([[k0], k[keep], [k_end]])
+            dt = np.concatenate([[d0], d[keep], [de]])
+            yt = np.concatenate([[y0], y[keep], [ye]])
             self._tables[psi] = (kt.tolist(), *(_ascending(v) for v in (dt, yt)))
         kc, dc, yc = self._ends[PSI_COMPRESSION]   # type: ignore[misc]
         kt, dt, yt = self._ends[PSI_TENSION]       # type: ignore[misc]
@@ -404,17 +409,21 @@ class Continuum2(MechanismBase):
         """
         st = self.solve_height(y)
         length, ei = self.length, self.ei
-        kmin, k_end = self._kmin[st.psi], self._ends[st.psi][0]     # type: ignore[index]
-        h = 1e-6 * (k_end - kmin)
+        def step(psi: float) -> tuple[float, float]:
+            """(k_min, difference step) of the branch ``psi``."""
+            kmin = self._kmin[psi]
+            return kmin, 1e-6 * (self._ends[psi][0] - kmin)    # type: ignore[index]
+
+        kmin, h = step(st.psi)
         if st.k - kmin > h:
-            k_a, k_b = st.k - h, min(st.k + h, k_end)
-            d_a, y_a, _ = _bar_end_scalar(k_a, st.psi, length, ei)
-            d_b, y_b, _ = _bar_end_scalar(k_b, st.psi, length, ei)
+            k_end = self._ends[st.psi][0]                    # type: ignore[index]
+            d_a, y_a, _ = _bar_end_scalar(st.k - h, st.psi, length, ei)
+            d_b, y_b, _ = _bar_end_scalar(min(st.k + h, k_end), st.psi, length, ei)
         else:
             other = PSI_TENSION if st.psi == PSI_COMPRESSION else PSI_COMPRESSION
+            kmin_o, h_o = step(other)
             d_a, y_a, _ = _bar_end_scalar(kmin + h, st.psi, length, ei)
-            d_b, y_b, _ = _bar_end_scalar(self._kmin[other] + h * (self._ends[other][0] - self._kmin[other])
-                                          / (k_end - kmin), other, length, ei)    # type: ignore[index]
+            d_b, y_b, _ = _bar_end_scalar(kmin_o + h_o, other, length, ei)
         return (d_b - d_a) / (y_b - y_a)
 
     def jacobian(self, pose: Sequence[float]) -> np.ndarray:
