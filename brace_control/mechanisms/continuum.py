@@ -76,8 +76,8 @@ import numpy as np
 from scipy.optimize import brentq, fsolve
 from scipy.special import ellipeinc, ellipkinc
 
-from .base import (MechanismBase, UnreachablePose, as_actuator_names, as_positive, as_range, as_vector, check_limits,
-                   check_section, config_errors, section_kwargs)
+from .base import (MechanismBase, Statics, UnreachablePose, as_actuator_names, as_poses, as_positive, as_range,
+                   as_vector, check_limits, check_section, config_errors, section_kwargs, within_limits)
 from .loader import register
 
 __all__ = ['Continuum2', 'bar_end', 'solve_bar', 'BarState', 'PSI_COMPRESSION', 'PSI_TENSION']
@@ -211,6 +211,8 @@ class Continuum2(MechanismBase):
     dof: int = 2
     n_actuators: int = 2
     pose_kind: str = 'xy'
+    wrench_axes = ('Fx', 'Fy')
+    wrench_units = ('N', 'N')
 
     def __init__(self, bar_length: float, youngs_modulus: float, width: float, thickness: float,
                  stroke: tuple[Any, Any], *, actuator_names: Sequence[str] = ('s1', 's2'),
@@ -252,6 +254,7 @@ class Continuum2(MechanismBase):
         """Branch ends (k = k_max) and monotonicity check on a dense k grid."""
         self._ends: dict[float, tuple[float, float]] = {}
         self._tables: dict[float, tuple[list[float], tuple[list[float], bool], tuple[list[float], bool]]] = {}
+        self._height_tables: dict[float, tuple[np.ndarray, np.ndarray, np.ndarray, bool]] = {}
         for psi in (PSI_COMPRESSION, PSI_TENSION):
             kmin = self._kmin[psi]
             # dense in k near k_min (where d, y move fastest) and near 1 (R -> inf)
@@ -277,6 +280,10 @@ class Continuum2(MechanismBase):
             dt = np.concatenate([[d0], d[keep], [de]])
             yt = np.concatenate([[y0], y[keep], [ye]])
             self._tables[psi] = (kt.tolist(), *(_ascending(v) for v in (dt, yt)))
+            # the same for the vectorised solve: moduli, ascending heights, the height at
+            # each modulus, whether the heights fall with k
+            y_asc, y_rev = self._tables[psi][2]
+            self._height_tables[psi] = (kt, np.asarray(y_asc), yt, y_rev)
         kc, dc, yc = self._ends[PSI_COMPRESSION]   # type: ignore[misc]
         kt, dt, yt = self._ends[PSI_TENSION]       # type: ignore[misc]
         #: heights reachable in mode 1 (m): (lowest in tension, highest in compression)
@@ -313,6 +320,162 @@ class Continuum2(MechanismBase):
         d, y, force = _bar_end_scalar(k, psi, length, ei)
         hx = force * math.cos(psi + math.pi / 4.0)   # bar-frame angle psi -> global angle psi + 45 deg
         return BarState(d, y, float(k), psi, force, hx)
+
+    def _solve_branch_batch(self, target: np.ndarray, psi: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`_solve_branch` for heights (``which = 1``), vectorised: ``(k, d, R)``.
+
+        The same table bracket, then the Illinois variant of regula falsi on :func:`bar_end`
+        in lock step (no Python loop over heights) until the bracket or the last step is
+        ~1e-15 wide (relative) or ``y`` is met to its rounding, as tight as the scalar's
+        Brent solve.
+        """
+        kt_a, values, y_of_k, reversed_ = self._height_tables[psi]
+        n = kt_a.size
+        i = np.searchsorted(values, target, side='left')
+        j_lo, j_hi = np.maximum(i - 1, 0), np.minimum(i, n - 1)
+        a, b = ((n - 1 - j_hi, n - 1 - j_lo) if reversed_ else (j_lo, j_hi))
+        lo_i, hi_i = np.minimum(a, b), np.maximum(a, b)
+        k_lo, k_hi = kt_a[lo_i], kt_a[hi_i]
+
+        def g(k: np.ndarray, y: np.ndarray) -> np.ndarray:
+            return self._branch_end(k, psi)[1] - y
+
+        rows = np.arange(target.size)
+        g_lo, g_hi = y_of_k[lo_i] - target, y_of_k[hi_i] - target     # the table holds y at its nodes
+        k = np.where(np.abs(g_lo) <= np.abs(g_hi), k_lo, k_hi)      # on a node (or the branch end)
+        bracket = g_lo * g_hi < 0.0
+        idx = rows[bracket]
+        s, t, fs, ft = k_lo[bracket], k_hi[bracket], g_lo[bracket], g_hi[bracket]
+        root = np.where(np.abs(fs) <= np.abs(ft), s, t)             # best iterate so far (least |g|)
+        best = np.minimum(np.abs(fs), np.abs(ft))
+        side = np.zeros(idx.size)
+        prev = np.full(idx.size, np.nan)
+        act = np.arange(idx.size)
+        for _ in range(100):
+            if act.size == 0:
+                break
+            sa, ta, fsa, fta = s[act], t[act], fs[act], ft[act]
+            r = (sa * fta - ta * fsa) / (fta - fsa)
+            inside = (r > np.minimum(sa, ta)) & (r < np.maximum(sa, ta))
+            # the secant lands on an end: nothing left between the floats, the best end stands
+            act, r, sa, ta, fsa, fta = act[inside], r[inside], sa[inside], ta[inside], fsa[inside], fta[inside]
+            ya = target[idx[act]]
+            fr = g(r, ya)
+            better = np.abs(fr) < best[act]
+            root[act] = np.where(better, r, root[act])
+            best[act] = np.where(better, np.abs(fr), best[act])
+            moved = np.abs(r - prev[act])                         # NaN on the first pass
+            prev[act] = r
+            keep_t = fr * fta > 0.0                                # r replaces t (Illinois: halve f(s) on a repeat)
+            keep_s = fr * fsa > 0.0                                # r replaces s
+            sd = side[act]
+            ta = np.where(keep_t, r, ta)
+            fta = np.where(keep_t, fr, fta)
+            fsa = np.where(keep_t & (sd == -1), 0.5 * fsa, fsa)
+            sa = np.where(keep_s, r, sa)
+            fsa = np.where(keep_s, fr, fsa)
+            fta = np.where(keep_s & (sd == 1), 0.5 * fta, fta)
+            s[act], t[act], fs[act], ft[act] = sa, ta, fsa, fta
+            side[act] = np.where(keep_t, -1, np.where(keep_s, 1, sd))
+            tol = 1e-16 + 1e-15 * np.abs(r)
+            # converged: y met to its rounding, a bracket or a step of ~1e-15
+            done = (np.abs(fr) <= 2.0 ** -52 * np.abs(ya)) | (np.abs(ta - sa) <= tol) | (moved <= tol)
+            act = act[~done]
+        k[idx] = root
+        d, _, force = self._branch_end(k, psi)
+        return k, d, force
+
+    def _solve_heights(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`solve_height` for heights (N,): ``(k, psi, d, H)``, NaN where it raises."""
+        k = np.full(y.shape, np.nan)
+        psi = np.full(y.shape, PSI_COMPRESSION)
+        d = np.full(y.shape, np.nan)
+        hx = np.full(y.shape, np.nan)
+        ylo, yhi = self.height_range
+        inside = (ylo <= y) & (y <= yhi)
+        straight = inside & (y == self.y0)
+        k[straight], d[straight], hx[straight] = self._kmin[PSI_COMPRESSION], self.d0, 0.0
+        for branch, sel in ((PSI_COMPRESSION, inside & (y > self.y0)), (PSI_TENSION, inside & (y < self.y0))):
+            if sel.any():
+                kb, db, fb = self._solve_branch_batch(y[sel], branch)
+                k[sel], d[sel], psi[sel] = kb, db, branch
+                hx[sel] = fb * math.cos(branch + math.pi / 4.0)
+        near = d < self.min_half_distance
+        k[near] = d[near] = hx[near] = np.nan
+        return k, psi, d, hx
+
+    def _slope_batch(self, k: np.ndarray, psi: np.ndarray) -> np.ndarray:
+        """:meth:`slope` from solved moduli (the same central difference in ``k``)."""
+        out = np.full(k.shape, np.nan)
+        for branch, other in ((PSI_COMPRESSION, PSI_TENSION), (PSI_TENSION, PSI_COMPRESSION)):
+            sel = (psi == branch) & np.isfinite(k)
+            if not sel.any():
+                continue
+            kmin, k_end = self._kmin[branch], self._ends[branch][0]       # type: ignore[index]
+            h = 1e-6 * (k_end - kmin)
+            kmin_o = self._kmin[other]
+            h_o = 1e-6 * (self._ends[other][0] - kmin_o)                  # type: ignore[index]
+            ks = k[sel]
+            inner = ks - kmin > h
+            d_a, y_a, _ = self._branch_end(np.where(inner, ks - h, kmin + h), branch)
+            d_bi, y_bi, _ = self._branch_end(np.minimum(ks + h, k_end), branch)
+            d_bo, y_bo, _ = self._branch_end(np.array(kmin_o + h_o), other)
+            d_b, y_b = np.where(inner, d_bi, d_bo), np.where(inner, y_bi, y_bo)
+            out[sel] = (d_b - d_a) / (y_b - y_a)
+        return out
+
+    def _batch_state(self, p: np.ndarray, limits: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Slider positions (N, 2) (NaN rows as :meth:`inverse_batch`), moduli, branches and ``H``."""
+        k, psi, d, hx = self._solve_heights(p[:, 1])
+        q = np.column_stack([p[:, 0] - d, p[:, 0] + d])
+        if limits:
+            q[~within_limits(q, self._lo, self._hi)] = np.nan
+        bad = np.isnan(q).any(axis=1)
+        k[bad] = hx[bad] = np.nan
+        return q, k, psi, hx
+
+    def inverse_batch(self, poses: np.ndarray, *, limits: bool = True) -> np.ndarray:
+        """Vectorised :meth:`inverse`: slider positions (N, 2) (m) for end-effector points (N, 2).
+
+        The heights are solved together (:meth:`_solve_branch_batch`: the same table
+        bracket as the scalar, then regula falsi on the elliptic solution). A NaN row beyond
+        mode 1's reach, with the sliders closer than allowed, or (with ``limits``) a slider
+        outside its stroke — where :meth:`inverse` raises :class:`~.base.UnreachablePose`.
+
+        :param limits: ``False``: no stroke check.
+        :raises ValueError: not an (N, 2) array, or a non-finite value.
+        """
+        return self._batch_state(as_poses(poses, 2), limits)[0]
+
+    def jacobian_batch(self, poses: np.ndarray, *, limits: bool = True) -> np.ndarray:
+        """Vectorised :meth:`jacobian`: ``[[1, -d'], [1, d']]`` (N, 2, 2), ``d' = dd/dy`` by the
+        same central difference in the modulus as :meth:`slope`; a NaN matrix where
+        :meth:`inverse_batch` has a NaN row."""
+        p = as_poses(poses, 2)
+        _, k, psi, _ = self._batch_state(p, limits)
+        dd = self._slope_batch(k, psi)
+        jac = np.empty((p.shape[0], 2, 2))
+        jac[:, :, 0] = 1.0
+        jac[:, 0, 1], jac[:, 1, 1] = -dd, dd
+        jac[np.isnan(dd)] = np.nan
+        return jac
+
+    def _statics_batch(self, p: np.ndarray) -> Statics:
+        """``W = J^T (f - f0)``: ``G = J^T``, ``b = f0 = (-H, H)``, ``H = J^-T`` in closed form
+        ``[[1/2, -1/(2 d')], [1/2, 1/(2 d')]]`` (regular where ``d' != 0``)."""
+        _, k, psi, hx = self._batch_state(p, True)
+        dd = self._slope_batch(k, psi)
+        reach = np.isfinite(dd)
+        g = np.empty((p.shape[0], 2, 2))
+        g[:, 0, :] = 1.0
+        g[:, 1, 0], g[:, 1, 1] = -dd, dd
+        with np.errstate(divide='ignore'):
+            inv = 0.5 / dd
+        h = np.empty((p.shape[0], 2, 2))
+        h[:, :, 0] = 0.5
+        h[:, 0, 1], h[:, 1, 1] = -inv, inv
+        g[~reach] = h[~reach] = np.nan
+        return Statics(reach, g, h, reach & (dd != 0.0), np.column_stack([-hx, hx]))
 
     def solve_height(self, y: float) -> BarState:
         """The no-load configuration with the end effector at height ``y`` (m), mode 1.

@@ -89,8 +89,8 @@ from typing import Any
 
 import numpy as np
 
-from .base import (MechanismBase, UnreachablePose, as_actuator_names, as_vector, check_limits, check_section,
-                   config_errors, section_kwargs)
+from .base import (MechanismBase, Statics, UnreachablePose, as_actuator_names, as_poses, as_vector, check_limits,
+                   check_section, config_errors, section_kwargs, within_limits)
 from .loader import register
 
 __all__ = [
@@ -201,6 +201,10 @@ class HoekenFourBar(MechanismBase):
     mobility: int = 1
     n_actuators: int = 1
     pose_kind: str = 'xy'
+    #: capacity axis: the force along the path (arc length, the direction of increasing
+    #: crank angle), the generalised force of the one degree of freedom
+    wrench_axes = ('F_path',)
+    wrench_units = ('N',)
     #: curve samples per crank turn used to seed the projection onto the coupler curve
     curve_samples: int = 1440
 
@@ -381,6 +385,76 @@ class HoekenFourBar(MechanismBase):
         al3 = (e4.conjugate() * rr).real / (self.L3 * s34)
         return (a + self.AP * e3, va + 1j * w3 * self.AP * e3, aa + self.AP * (1j * al3 - w3 * w3) * e3)
 
+    def _curve_batch(self, th: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`_curve_scalar` for an array of crank angles (the same equations in numpy)."""
+        e2 = np.exp(1j * th)
+        a = self.L2 * e2
+        d = self.L1 - a
+        dist = np.abs(d)
+        u = d / dist
+        along = (self.L3 ** 2 - self.L4 ** 2 + dist * dist) / (2.0 * dist)
+        b = a + along * u + self._sigma * np.sqrt(np.maximum(self.L3 ** 2 - along * along, 0.0)) * 1j * u
+        e3 = (b - a) / self.L3
+        e4 = (b - self.L1) / self.L4
+        s34 = (np.conj(e4) * e3).imag
+        va = 1j * self.L2 * e2
+        w3 = (np.conj(e4) * va).real / (self.L3 * s34)
+        w4 = (np.conj(e3) * va).real / (self.L4 * s34)
+        aa = -self.L2 * e2
+        rr = aa - self.L3 * w3 * w3 * e3 + self.L4 * w4 * w4 * e4
+        al3 = (np.conj(e4) * rr).real / (self.L3 * s34)
+        return (a + self.AP * e3, va + 1j * w3 * self.AP * e3, aa + self.AP * (1j * al3 - w3 * w3) * e3)
+
+    def _nearest_on_curve_batch(self, target: np.ndarray, chunk: int = 256) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`nearest_on_curve` for targets (K,) complex: crank angles (wrapped) and distances (m).
+
+        The same seeds (the two best local minima of the distance over the sampled curve)
+        and the same damped Newton, run in lock step (each row stops where the scalar does);
+        ``chunk`` rows at a time bound the (rows x curve samples) distance table.
+        """
+        theta = np.empty(target.size)
+        dmin = np.empty(target.size)
+        for start in range(0, target.size, chunk):
+            tg = target[start:start + chunk]
+            diff = self._curve_p[None, :] - tg[:, None]
+            dist = diff.real * diff.real + diff.imag * diff.imag        # squared: the same order
+            dist[~np.isfinite(dist)] = np.inf
+            local = (dist <= np.roll(dist, 1, axis=1)) & (dist <= np.roll(dist, -1, axis=1))
+            masked = np.where(local, dist, np.inf)
+            two = np.argpartition(masked, 1, axis=1)[:, :2]                # the two best, in either order
+            d2 = np.take_along_axis(masked, two, axis=1)
+            swap = (d2[:, 1] < d2[:, 0]) | ((d2[:, 1] == d2[:, 0]) & (two[:, 1] < two[:, 0]))
+            ranked = np.where(swap[:, None], two[:, ::-1], two)
+            has_local = local.any(axis=1)
+            ranked[~has_local, 0] = np.argmin(dist[~has_local], axis=1)
+            second = local.sum(axis=1) >= 2
+            best_t = np.zeros(tg.size)
+            best_d = np.full(tg.size, np.inf)
+            for s in range(2):
+                use = np.ones(tg.size, dtype=bool) if s == 0 else second
+                th = self._curve_theta[ranked[:, s]].astype(float)
+                active = use.copy()
+                for _ in range(40):
+                    if not active.any():
+                        break
+                    p, dp, ddp = self._curve_batch(th[active])
+                    r = p - tg[active]
+                    g = (np.conj(r) * dp).real
+                    hess = np.abs(dp) ** 2 + (np.conj(r) * ddp).real
+                    step = np.where(hess > 0.0, -g / np.where(hess > 0.0, hess, 1.0),
+                                    -g / np.maximum(np.abs(dp) ** 2, 1e-300))
+                    step = np.clip(step, -0.05, 0.05)
+                    th[active] += step
+                    idx = np.flatnonzero(active)
+                    active[idx[np.abs(step) < 1e-13]] = False
+                d = np.abs(self._curve_batch(th)[0] - tg)
+                better = use & (d < best_d)
+                best_t = np.where(better, th, best_t)
+                best_d = np.where(better, d, best_d)
+            theta[start:start + chunk] = best_t
+            dmin[start:start + chunk] = best_d
+        return self._lo + np.mod(theta - self._lo, _TWO_PI), dmin
+
     def nearest_on_curve(self, pose: Sequence[float]) -> tuple[float, float]:
         """``(theta2, distance)``: the crank angle (rad, wrapped into the crank range) of
         the coupler-curve point nearest ``pose`` (m) and its distance (m). No range check.
@@ -454,6 +528,79 @@ class HoekenFourBar(MechanismBase):
         q = np.array([self._wrap_q(theta)])
         check_limits(q, np.array([self._lo]), np.array([self._hi]), self.actuator_names, unit='rad')
         return q
+
+    def _inverse_batch(self, p: np.ndarray, limits: bool) -> np.ndarray:
+        """Crank angles (N,) for validated points (N, 2); NaN where :meth:`inverse` raises."""
+        target = p[:, 0] + 1j * p[:, 1]
+        r = np.abs(target)
+        scale = self.L1 + self.L2 + self.L3 + self.L4
+        with np.errstate(divide='ignore', invalid='ignore'):
+            c = (r * r + self.L2 ** 2 - self.AP ** 2) / (2.0 * self.L2 * r)
+        closed = (r > 0.0) & (np.abs(c) <= 1.0)
+        phi = np.arctan2(p[:, 1], p[:, 0])
+        acc = np.arccos(np.where(closed, c, 0.0))
+        theta = np.full(p.shape[0], np.nan)
+        best = np.full(p.shape[0], np.inf)
+        for sign in (1.0, -1.0):               # eq. 3.12's two roots, in the scalar's order
+            th = phi + sign * acc
+            a = self.L2 * np.exp(1j * th)
+            b = a + (target - a) * (self.L3 / self.AP)
+            res = np.abs(np.abs(b - self.L1) - self.L4)
+            side = _cross(self.L1 - a, b - a)
+            take = closed & (res <= 1e-10 * scale) & (side * self._sigma > 0.0) & (res < best)
+            theta = np.where(take, th, theta)
+            best = np.where(take, res, best)
+        project = np.isnan(theta)
+        if project.any():
+            th_p, d = self._nearest_on_curve_batch(target[project])
+            theta[project] = np.where(d <= self.curve_tolerance, th_p, np.nan)
+        q = self._lo + np.mod(theta - self._lo, _TWO_PI)
+        if limits:
+            q = np.where(within_limits(q[:, None], np.array([self._lo]), np.array([self._hi])), q, np.nan)
+        return q
+
+    def inverse_batch(self, poses: np.ndarray, *, limits: bool = True) -> np.ndarray:
+        """Vectorised :meth:`inverse`: crank angles (N, 1) (rad) for coupler points (N, 2) (m).
+
+        Eq. 3.12 in closed form for points on the curve, the projection of
+        :meth:`nearest_on_curve` (vectorised) for the others; a NaN row farther than
+        ``curve_tolerance`` from the curve or (with ``limits``) outside ``crank_range`` —
+        where :meth:`inverse` raises :class:`~.base.UnreachablePose`.
+
+        :param limits: ``False``: no crank-range check.
+        :raises ValueError: not an (N, 2) array, or a non-finite value.
+        """
+        return self._inverse_batch(as_poses(poses, 2), limits)[:, None]
+
+    def jacobian_batch(self, poses: np.ndarray, *, limits: bool = True) -> np.ndarray:
+        """Vectorised :meth:`jacobian`: ``J = t^T / |t|^2`` (N, 1, 2); a NaN matrix where
+        :meth:`inverse_batch` has a NaN row."""
+        q = self._inverse_batch(as_poses(poses, 2), limits)
+        dp = self._curve_batch(np.where(np.isnan(q), 0.0, q))[1]
+        t = np.stack([dp.real, dp.imag], axis=-1)
+        jac = (t / np.sum(t * t, axis=-1, keepdims=True))[:, None, :]
+        jac[np.isnan(q)] = np.nan
+        return jac
+
+    # ------------------------------------------------------------------ capacity along the path
+    def _capacity_axes(self, pose: np.ndarray, **branch: Any) -> np.ndarray:
+        """The unit tangent ``t / |t|`` (1, 2): :meth:`wrench` projected on the path."""
+        t = self.tangent(pose)
+        return (t / math.hypot(t[0], t[1]))[None, :]
+
+    def _statics_batch(self, p: np.ndarray) -> Statics:
+        """Along the path (arc length ``s``): ``F_s = T2 / |t|`` (virtual work, ``t = dP/dtheta2``),
+        so ``G = 1 / |t|`` and ``H = |t|`` (1 x 1; ``|t| = 0`` at a dead point of the path:
+        no torque needed, capacity infinite)."""
+        q = self._inverse_batch(p, True)
+        reach = ~np.isnan(q)
+        speed = np.abs(self._curve_batch(np.where(reach, q, 0.0))[1])
+        with np.errstate(divide='ignore'):
+            g = (1.0 / speed)[:, None, None]
+        g[~reach] = np.nan
+        h = speed[:, None, None].copy()
+        h[~reach] = np.nan
+        return Statics(reach, g, h, reach, np.zeros((p.shape[0], 1)))
 
     def distance_to_curve(self, pose: Sequence[float]) -> float:
         """Distance (m) from ``pose`` to the coupler curve of the configured branch."""

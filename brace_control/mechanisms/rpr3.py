@@ -73,6 +73,15 @@ but eqs. 14-16 divide by the *squared* length; the unit vector needs its square 
 -r2 (cos t, sin t)`` and ``rho_2 = 0``, so ``M = r2 cos t (F3Y - F1Y) + r2 sin t (F1X -
 F3X)``: the *negative* of eq. 20's ``M`` although the paper calls counter-clockwise
 positive (erratum 2). :meth:`Rpr3.wrench` returns the counter-clockwise ``r x F`` moment.
+
+Force transmission (:meth:`~.base.MechanismBase.wrench_capacity`): the legs that hold a
+wrench ``W`` push with ``f = J^-T W``. The brace's legs are nearly parallel: at ``x = 0``,
+``y = 390 mm``, 10 N sideways (base-frame ``Fx``) takes 1770 / -3515 / 1751 N at
+``theta = 5 deg``, 800 / -1579 / 782 N at 10 deg, 127 / -232 / 108 N at 30 deg, so with
+250 N actuators the lateral capacity is 0.711 N, 1.58 N and 10.8 N (the middle leg a2
+binds) and 0 at ``theta = 0`` (singular). The 30 deg pose is outside the brace's stroke
+(a1 would need 296 mm < 340 mm): the capacity there is the geometry's, not a reachable
+pose's.
 """
 from __future__ import annotations
 
@@ -83,8 +92,8 @@ from typing import Any
 import numpy as np
 
 from .base import (MechanismBase, SingularPose, UnreachablePose, as_actuator_names, as_condition_max,
-                   as_points, as_range, as_vector, check_limits, check_section, condition_number,
-                   config_errors, section_kwargs, section_points)
+                   as_points, as_poses, as_range, as_vector, check_limits, check_section, condition_number,
+                   config_errors, section_kwargs, section_points, within_limits)
 from .loader import register
 from .planar import RprLegs, trig_poly_coefficients, trig_poly_real_roots, wrap_angle
 
@@ -184,17 +193,17 @@ class Rpr3(RprLegs, MechanismBase):
         check_limits(q, self._lo, self._hi, self.actuator_names)
         return q
 
-    def inverse_batch(self, poses: np.ndarray) -> np.ndarray:
-        """Vectorised eq. 3: lengths (N, 3) for poses (N, 3). No stroke check (see :meth:`reachable_batch`).
+    def inverse_batch(self, poses: np.ndarray, *, limits: bool = True) -> np.ndarray:
+        """Vectorised eq. 3: lengths (N, 3) (m) for poses (N, 3); a NaN row where a length is
+        outside the stroke (where :meth:`inverse` raises), never an exception.
 
-        :raises ValueError: not an (N, 3) array, or a non-finite value.
+        Singular poses (e.g. the brace at ``theta = 0``) are reachable and get their lengths:
+        conditioning is the caller's check (:meth:`in_workspace_batch`, ``condition``).
+
+        :param limits: ``False``: every pose's lengths, no stroke check.
+        :raises ValueError: not an (N, 3) array, or a non-finite value (naming the rows).
         """
-        p = np.asarray(poses, dtype=float)
-        if p.ndim != 2 or p.shape[1] != 3:
-            raise ValueError(f'poses: expected shape (N, 3), got shape {p.shape}')
-        if not np.isfinite(p).all():
-            rows = np.flatnonzero(~np.isfinite(p).all(axis=1))[:10].tolist()
-            raise ValueError(f'poses: non-finite value in rows {rows}')
+        p = as_poses(poses, 3)
         c, s = np.cos(p[:, 2]), np.sin(p[:, 2])
         out = np.empty((p.shape[0], 3))
         for i in range(3):
@@ -203,12 +212,29 @@ class Rpr3(RprLegs, MechanismBase):
             dx = p[:, 0] + (c * bx - s * by) - ax
             dy = p[:, 1] + (s * bx + c * by) - ay
             np.hypot(dx, dy, out=out[:, i])
+        if limits:
+            out[~within_limits(out, self._lo, self._hi)] = np.nan
         return out
+
+    def jacobian_batch(self, poses: np.ndarray, *, limits: bool = True) -> np.ndarray:
+        """Vectorised :meth:`jacobian`: ``J`` (N, 3, 3), rows ``(u_i, rho_i x u_i)``.
+
+        A NaN matrix where :meth:`inverse_batch` has a NaN row (outside the stroke; with
+        ``limits=False`` only where a leg has zero length, as :meth:`jacobian` raises there).
+
+        :raises ValueError: not an (N, 3) array, or a non-finite value.
+        """
+        p = as_poses(poses, 3)
+        jac = self._jacobian_batch(p)
+        bad = ~np.isfinite(jac).all(axis=(1, 2))
+        if limits:
+            bad |= np.isnan(self.inverse_batch(p)).any(axis=1)
+        jac[bad] = np.nan
+        return jac
 
     def reachable_batch(self, poses: np.ndarray) -> np.ndarray:
         """Boolean mask (N,): every length of the pose within its stroke (vectorised, no singularity test)."""
-        q = self.inverse_batch(poses)
-        return np.all((q >= self._lo) & (q <= self._hi), axis=1)
+        return ~np.isnan(self.inverse_batch(poses)).any(axis=1)
 
     def in_workspace_batch(self, poses: np.ndarray) -> np.ndarray:
         """Boolean mask (N,): within stroke and ``cond(J) <= singularity_condition_max`` (vectorised)."""
@@ -219,6 +245,7 @@ class Rpr3(RprLegs, MechanismBase):
         return ok & (self._condition_batch(p) <= self.singularity_condition_max)
 
     def _jacobian_batch(self, p: np.ndarray) -> np.ndarray:
+        """``J`` of validated poses (N, 3), no stroke check (NaN rows for a zero-length leg)."""
         c, s = np.cos(p[:, 2]), np.sin(p[:, 2])
         bx, by = self.platform_anchors[:, 0], self.platform_anchors[:, 1]
         rx = c[:, None] * bx - s[:, None] * by

@@ -58,8 +58,8 @@ import numpy as np
 
 from ..config import ConfigError
 from .base import (MechanismBase, SingularPose, UnreachablePose, as_actuator_names, as_condition_max,
-                   as_points, as_positive, as_range, as_vector, check_limits, check_section, condition_number,
-                   config_errors, section_kwargs, section_points)
+                   as_points, as_poses, as_positive, as_range, as_vector, check_limits, check_section,
+                   condition_number, config_errors, section_kwargs, section_points, within_limits)
 from .loader import register
 from .planar import RprLegs, cross2, wrap_angle
 from .rpr3 import Rpr3
@@ -208,14 +208,39 @@ class Rpr4(RprLegs, MechanismBase):
         d = self._legs(as_vector(pose, 3, 'pose'))[0]
         return np.arctan2(d[:, 1], d[:, 0])
 
-    def inverse_batch(self, poses: np.ndarray) -> np.ndarray:
-        """Lengths (N, 4) for poses (N, 3), no stroke check."""
-        p = np.asarray(poses, dtype=float)
-        if p.ndim != 2 or p.shape[1] != 3:
-            raise ValueError(f'poses: expected shape (N, 3), got shape {p.shape}')
-        if not np.isfinite(p).all():
-            raise ValueError('poses: contains a non-finite value')
-        return np.linalg.norm(self._legs_batch(p)[0], axis=-1)
+    def inverse_batch(self, poses: np.ndarray, *, limits: bool = True) -> np.ndarray:
+        """Vectorised eq. 6: lengths (N, 4) (m) for poses (N, 3); a NaN row where a length is
+        outside the stroke (where :meth:`inverse` raises), never an exception.
+
+        :param limits: ``False``: every pose's lengths, no stroke check.
+        :raises ValueError: not an (N, 3) array, or a non-finite value (naming the rows).
+        """
+        p = as_poses(poses, 3)
+        out = np.linalg.norm(self._legs_batch(p)[0], axis=-1)
+        if limits:
+            out[~within_limits(out, self._lo, self._hi)] = np.nan
+        return out
+
+    def jacobian_batch(self, poses: np.ndarray, *, limits: bool = True) -> np.ndarray:
+        """Vectorised :meth:`jacobian`: ``J`` (N, 4, 3), rows ``(u_n, rho_n x u_n)``; a NaN
+        matrix where :meth:`inverse_batch` has a NaN row (or a leg has zero length).
+
+        :raises ValueError: not an (N, 3) array, or a non-finite value.
+        """
+        p = as_poses(poses, 3)
+        jac = self._jacobian_batch(p)
+        bad = ~np.isfinite(jac).all(axis=(1, 2))
+        if limits:
+            bad |= np.isnan(self.inverse_batch(p)).any(axis=1)
+        jac[bad] = np.nan
+        return jac
+
+    def _effort_bounds(self, limits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Thrust range for :meth:`wrench_capacity`: rods ``[-limit, limit]``; cables pull
+        only, ``[-limit, 0]`` (thrust = minus tension; ``tension_min`` is not imposed)."""
+        if self.actuation == 'cable':
+            return -limits, np.zeros_like(limits)
+        return -limits, limits.copy()
 
     def _legs_batch(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         c, s = np.cos(p[:, 2])[:, None], np.sin(p[:, 2])[:, None]
@@ -385,7 +410,7 @@ class Rpr4(RprLegs, MechanismBase):
         if w.ndim != 2 or w.shape[1] != 3 or not np.isfinite(w).all():
             raise ValueError(f'wrenches: expected a finite (K, 3) array, got shape {w.shape}')
         lo, hi = self._bounds(self.actuation if mode is None else mode)
-        q = self.inverse_batch(p)
+        q = self.inverse_batch(p, limits=False)
         ok = np.all((q >= self._lo) & (q <= self._hi), axis=1) & np.all(q > 1e-12, axis=1)
         out = np.zeros(p.shape[0], dtype=bool)
         if not ok.any():

@@ -53,12 +53,13 @@ from typing import Any
 
 import numpy as np
 
-from .base import (MechanismBase, SingularPose, UnreachablePose, as_actuator_names, as_condition_max, as_range,
-                   as_vector, check_limits, check_section, condition_number, config_errors, section_kwargs)
+from .base import (MechanismBase, SingularPose, Statics, UnreachablePose, as_actuator_names, as_condition_max,
+                   as_poses, as_range, as_vector, check_limits, check_section, condition_number, config_errors,
+                   section_kwargs, within_limits)
 from .loader import register
 from .planar import wrap_angle
 
-__all__ = ['Rr2', 'ELBOW_SIGN', 'angle_into_range']
+__all__ = ['Rr2', 'ELBOW_SIGN', 'angle_into_range', 'angles_into_range']
 
 #: elbow branch name -> sign of theta2 (the report's "+-")
 ELBOW_SIGN: dict[str, int] = {'down': 1, 'up': -1}
@@ -81,6 +82,24 @@ def angle_into_range(theta: float, lo: float, hi: float, *, tol: float = 1e-12) 
         if gap < best_gap or (gap == best_gap == 0.0 and abs(t - theta) < abs(best - theta)):
             best, best_gap = t, gap
     return best
+
+
+def angles_into_range(theta: np.ndarray, lo: np.ndarray, hi: np.ndarray, *, tol: float = 1e-12) -> np.ndarray:
+    """:func:`angle_into_range` element by element, vectorised (the same choice: in range
+    and nearest ``theta``, else nearest the range, first of equals).
+
+    :param theta: angles (rad), shape (..., n); ``lo``, ``hi`` broadcast against it.
+    """
+    th = np.asarray(theta, dtype=float)
+    lo_b = np.broadcast_to(np.asarray(lo, dtype=float), th.shape)[..., None]
+    hi_b = np.broadcast_to(np.asarray(hi, dtype=float), th.shape)[..., None]
+    k0 = np.floor((lo_b - th[..., None]) / _TWO_PI)
+    t = th[..., None] + (k0 + np.arange(-1.0, 3.0)) * _TWO_PI                 # the four candidates
+    gap = np.maximum(np.maximum(lo_b - tol - t, t - hi_b - tol), 0.0)
+    inside = gap == 0.0
+    nearest = np.argmin(np.where(inside, np.abs(t - th[..., None]), np.inf), axis=-1)
+    pick = np.where(inside.any(axis=-1), nearest, np.argmin(gap, axis=-1))
+    return np.take_along_axis(t, pick[..., None], axis=-1)[..., 0]
 
 
 def _elbow(value: Any) -> int:
@@ -109,6 +128,8 @@ class Rr2(MechanismBase):
     dof: int = 2
     n_actuators: int = 2
     _singular_hint = ' (arm stretched or folded)'
+    wrench_axes = ('Fx', 'Fy')
+    wrench_units = ('N', 'N')
 
     def __init__(self, link_lengths: Sequence[float], joint_range: tuple[Any, Any] | Sequence[Any], *,
                  base: Sequence[float] = (0.0, 0.0), elbow: str = 'up',
@@ -200,6 +221,73 @@ class Rr2(MechanismBase):
                       angle_into_range(t2, self._lo[1], self._hi[1])])
         check_limits(q, self._lo, self._hi, self.actuator_names, unit='rad')
         return q
+
+    def _angles_batch(self, p: np.ndarray, sigma: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`_angles` for validated poses (N, 2): ``(theta1 wrapped, theta2, inside annulus)``."""
+        dx, dy = p[:, 0] - self.base[0], p[:, 1] - self.base[1]
+        r = np.hypot(dx, dy)
+        r_min, r_max = self.reach
+        tol = 1e-12 * (self.l1 + self.l2)
+        inside = (r_min - tol <= r) & (r <= r_max + tol)
+        c2 = np.clip((r * r - self.l1 ** 2 - self.l2 ** 2) / (2.0 * self.l1 * self.l2), -1.0, 1.0)
+        t2 = sigma * np.arccos(c2)
+        t1 = np.arctan2(dy, dx) - np.arctan2(self.l2 * np.sin(t2), self.l1 + self.l2 * np.cos(t2))
+        return wrap_angle(t1), t2, inside
+
+    def inverse_batch(self, poses: np.ndarray, *, limits: bool = True, elbow: str | None = None) -> np.ndarray:
+        """Vectorised :meth:`inverse`: joint angles (N, 2) (rad) for end points (N, 2) (m).
+
+        A NaN row outside the annulus, or (with ``limits``) with a joint outside its range —
+        where :meth:`inverse` raises :class:`~.base.UnreachablePose`. An end point on the
+        shoulder joint (``l1 = l2``, where :meth:`inverse` raises ``SingularPose``: the
+        shoulder angle is undefined) gets the formula's angles.
+
+        :param limits: ``False``: no joint-range check (angles still moved by whole turns
+            towards the ranges).
+        :param elbow: ``'up'`` / ``'down'``; default the configured branch.
+        :raises ValueError: not an (N, 2) array, a non-finite value, a bad ``elbow``.
+        """
+        p = as_poses(poses, 2)
+        t1, t2, inside = self._angles_batch(p, self._sigma_of(elbow))
+        q = angles_into_range(np.column_stack([t1, t2]), self._lo, self._hi)
+        bad = ~inside
+        if limits:
+            bad |= ~within_limits(q, self._lo, self._hi)
+        q[bad] = np.nan
+        return q
+
+    def _serial_batch(self, p: np.ndarray, sigma: int) -> tuple[np.ndarray, np.ndarray]:
+        """``J_s`` (N, 2, 2) at validated poses and the annulus mask."""
+        t1, t2, inside = self._angles_batch(p, sigma)
+        s1, c1 = np.sin(t1), np.cos(t1)
+        s12, c12 = np.sin(t1 + t2), np.cos(t1 + t2)
+        js = np.stack([np.stack([-self.l1 * s1 - self.l2 * s12, -self.l2 * s12], -1),
+                       np.stack([self.l1 * c1 + self.l2 * c12, self.l2 * c12], -1)], -2)
+        return js, inside
+
+    def jacobian_batch(self, poses: np.ndarray, *, limits: bool = True, elbow: str | None = None) -> np.ndarray:
+        """Vectorised :meth:`jacobian`: ``J = J_s^-1`` (N, 2, 2) (rad/m).
+
+        A NaN matrix where :meth:`inverse_batch` has a NaN row; non-finite where the arm is
+        stretched or folded (:meth:`jacobian` raises ``SingularPose``).
+        """
+        p = as_poses(poses, 2)
+        sigma = self._sigma_of(elbow)
+        js, _ = self._serial_batch(p, sigma)
+        det = js[:, 0, 0] * js[:, 1, 1] - js[:, 0, 1] * js[:, 1, 0]
+        adj = np.stack([np.stack([js[:, 1, 1], -js[:, 0, 1]], -1), np.stack([-js[:, 1, 0], js[:, 0, 0]], -1)], -2)
+        with np.errstate(divide='ignore', invalid='ignore'):
+            jac = adj / np.where(np.abs(det) <= 1e-12 * self.l1 * self.l2, 0.0, det)[:, None, None]
+        jac[np.isnan(self.inverse_batch(p, limits=limits, elbow=elbow)).any(axis=1)] = np.nan
+        return jac
+
+    def _statics_batch(self, p: np.ndarray, *, elbow: str | None = None) -> Statics:
+        """``W = J_s^-T tau``: ``G = J_s^-T``, ``H = J_s^T`` (finite when stretched or folded:
+        a force along the arm then needs no torque)."""
+        js, _ = self._serial_batch(p, self._sigma_of(elbow))
+        reach = ~np.isnan(self.inverse_batch(p, elbow=elbow)).any(axis=1)
+        g = np.swapaxes(self.jacobian_batch(p, elbow=elbow), -1, -2)
+        return Statics(reach, g, np.swapaxes(js, -1, -2), reach, np.zeros((p.shape[0], 2)))
 
     def forward(self, q: Sequence[float]) -> list[np.ndarray]:
         """The end point of joint angles ``q`` (rad): a one-element list (a serial arm has one).

@@ -64,13 +64,14 @@ from typing import Any
 
 import numpy as np
 
-from .base import (MechanismBase, SingularPose, UnreachablePose, as_actuator_names, as_condition_max,
-                   as_per_actuator, as_points, as_range, as_vector, check_limits, check_section,
-                   condition_number, config_errors, rot2, section_kwargs, section_points)
+from .base import (MechanismBase, SingularPose, Statics, UnreachablePose, as_actuator_names, as_condition_max,
+                   as_per_actuator, as_points, as_poses, as_range, as_vector, check_limits, check_section,
+                   condition_number, config_errors, rot2, section_kwargs, section_points, within_limits)
+from .capacity import regular_inverse
 from .loader import register
 from .planar import cross2, wrap_angle
 from .rpr3 import Rpr3
-from .rr2 import angle_into_range
+from .rr2 import angle_into_range, angles_into_range
 
 __all__ = ['Rrr3']
 
@@ -204,6 +205,83 @@ class Rrr3(MechanismBase):
         q = np.array([angle_into_range(float(t[i]), self._lo[i], self._hi[i]) for i in range(3)])
         check_limits(q, self._lo, self._hi, self.actuator_names, unit='rad')
         return q
+
+    def _legs_batch(self, p: np.ndarray, mode: tuple[int, int, int]
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """For validated poses (N, 3): motor angles (wrapped, no range check), the mask of
+        legs that close, ``rho_i = R(phi) a_i`` and ``A_i - B_i`` (N, 3, 2)."""
+        rho = self.platform_anchors @ np.swapaxes(rot2(p[:, 2]), -1, -2)          # (N, 3, 2)
+        d = p[:, None, :2] + rho - self.base_pivots
+        dist = np.hypot(d[..., 0], d[..., 1])
+        r, l = self.proximal_lengths, self.distal_lengths
+        hi = r + l
+        tol = 1e-12 * hi
+        close = (np.abs(r - l) - tol <= dist) & (dist <= hi + tol)
+        c = np.clip((dist * dist - r * r - l * l) / (2.0 * r * l), -1.0, 1.0)
+        alpha = np.asarray(mode, dtype=float) * np.arccos(c)
+        theta = wrap_angle(np.arctan2(d[..., 1], d[..., 0]) - np.arctan2(l * np.sin(alpha), r + l * np.cos(alpha)))
+        return np.asarray(theta, dtype=float).reshape(dist.shape), close, rho, d
+
+    def inverse_batch(self, poses: np.ndarray, *, limits: bool = True,
+                      working_mode: Sequence[int] | None = None) -> np.ndarray:
+        """Vectorised :meth:`inverse`: motor angles (N, 3) (rad) for poses (N, 3).
+
+        A NaN row where a leg cannot close or (with ``limits``) a motor angle is outside its
+        range — where :meth:`inverse` raises :class:`~.base.UnreachablePose`. A platform joint
+        on its base pivot (``r = l``, :meth:`inverse` raises ``SingularPose``: the angle is
+        undefined) gets the formula's angle.
+
+        :param limits: ``False``: no joint-range check (angles still moved by whole turns
+            towards the ranges).
+        :param working_mode: three signs; default the configured one.
+        :raises ValueError: not an (N, 3) array, a non-finite value, a bad working mode.
+        """
+        p = as_poses(poses, 3)
+        theta, close, _, _ = self._legs_batch(p, self._mode_of(working_mode))
+        q = angles_into_range(theta, self._lo, self._hi)
+        bad = ~close.all(axis=1)
+        if limits:
+            bad |= ~within_limits(q, self._lo, self._hi)
+        q[bad] = np.nan
+        return q
+
+    def _constraints_batch(self, p: np.ndarray, working_mode: Sequence[int] | None, limits: bool
+                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``A`` (N, 3, 3), ``d`` (N, 3) of :meth:`constraint_matrices` for validated poses,
+        and the reachable mask (as :meth:`inverse_batch`)."""
+        mode = self._mode_of(working_mode)
+        theta, close, rho, dvec = self._legs_batch(p, mode)
+        u = np.stack([np.cos(theta), np.sin(theta)], axis=-1)
+        w = dvec - self.proximal_lengths[:, None] * u
+        a_mat = np.concatenate([w, cross2(rho, w)[..., None]], axis=-1)
+        reach = ~np.isnan(self.inverse_batch(p, limits=limits, working_mode=mode)).any(axis=1)
+        return a_mat, self.proximal_lengths * cross2(u, w), reach
+
+    def jacobian_batch(self, poses: np.ndarray, *, limits: bool = True,
+                       working_mode: Sequence[int] | None = None) -> np.ndarray:
+        """Vectorised :meth:`jacobian`: ``J = D^-1 A`` (N, 3, 3).
+
+        A NaN matrix where :meth:`inverse_batch` has a NaN row; non-finite rows where a leg
+        is stretched or folded (``D_ii = 0``: :meth:`jacobian` raises ``SingularPose``).
+        """
+        p = as_poses(poses, 3)
+        a_mat, d, reach = self._constraints_batch(p, working_mode, limits)
+        small = np.abs(d) <= 1e-12 * self._scale ** 2
+        with np.errstate(divide='ignore', invalid='ignore'):
+            jac = a_mat / np.where(small, 0.0, d)[..., None]
+        jac[~reach] = np.nan
+        return jac
+
+    def _statics_batch(self, p: np.ndarray, *, working_mode: Sequence[int] | None = None) -> Statics:
+        """``W = J^T tau = A^T D^-1 tau``: ``G = J^T``, ``H = D A^-T`` (finite when a leg is
+        stretched or folded; regular where ``A`` is, i.e. away from parallel singularities)."""
+        a_mat, d, reach = self._constraints_batch(p, working_mode, True)
+        small = np.abs(d) <= 1e-12 * self._scale ** 2
+        with np.errstate(divide='ignore', invalid='ignore'):
+            g = np.swapaxes(a_mat / np.where(small, 0.0, d)[..., None], -1, -2)
+        g[~reach] = np.nan
+        a_inv_t, regular = regular_inverse(np.swapaxes(a_mat, -1, -2))
+        return Statics(reach, g, d[..., None] * a_inv_t, regular & reach, np.zeros((p.shape[0], 3)))
 
     # ------------------------------------------------------------------ forward kinematics
     def equivalent_rpr3(self, q: Sequence[float]) -> Rpr3:

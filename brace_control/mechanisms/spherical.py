@@ -91,9 +91,10 @@ from typing import Any
 
 import numpy as np
 
-from .base import (MechanismBase, SingularPose, UnreachablePose, as_actuator_names, as_condition_max,
-                   as_per_actuator, as_range, as_vector, check_limits, check_section, config_errors,
-                   section_kwargs)
+from .base import (MechanismBase, SingularPose, Statics, UnreachablePose, as_actuator_names, as_condition_max,
+                   as_per_actuator, as_poses, as_range, as_vector, check_limits, check_section, config_errors,
+                   section_kwargs, within_limits)
+from .capacity import regular_inverse
 from .loader import register
 
 __all__ = [
@@ -166,18 +167,20 @@ def pose_from_matrix(q: np.ndarray) -> np.ndarray:
 
 
 def euler_rate_matrix(pose: np.ndarray) -> np.ndarray:
-    """``E`` (3, 3) with ``omega = E @ pose_dot`` (``omega`` in ``{B}``, rad/s).
+    """``E`` (3, 3) with ``omega = E @ pose_dot`` (``omega`` in ``{B}``, rad/s); poses (..., 3)
+    give (..., 3, 3).
 
     Columns: ``s_1 e_y``, ``s_2 R_y(a) e_x``, ``s_3 R_y(a) R_x(b) e_z`` (``s`` the angle signs).
     Singular at the gimbal lock ``flexion_extension = +-90 deg``.
     """
-    a = _SEQ_SIGNS[0] * pose[0]
-    b = _SEQ_SIGNS[1] * pose[1]
-    r1 = _axis_rotations(_SEQ_AXES[0], np.float64(a))
-    r2 = r1 @ _axis_rotations(_SEQ_AXES[1], np.float64(b))
-    return np.column_stack([_SEQ_SIGNS[0] * np.eye(3)[_SEQ_AXES[0]],
-                            _SEQ_SIGNS[1] * r1[:, _SEQ_AXES[1]],
-                            _SEQ_SIGNS[2] * r2[:, _SEQ_AXES[2]]])
+    p = np.asarray(pose, dtype=float)
+    a = _SEQ_SIGNS[0] * p[..., 0]
+    b = _SEQ_SIGNS[1] * p[..., 1]
+    r1 = _axis_rotations(_SEQ_AXES[0], a)
+    r2 = r1 @ _axis_rotations(_SEQ_AXES[1], b)
+    first = np.broadcast_to(_SEQ_SIGNS[0] * np.eye(3)[_SEQ_AXES[0]], r1.shape[:-1])
+    return np.stack([first, _SEQ_SIGNS[1] * r1[..., :, _SEQ_AXES[1]],
+                     _SEQ_SIGNS[2] * r2[..., :, _SEQ_AXES[2]]], axis=-1)
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -288,6 +291,9 @@ class Spherical3Rrr(MechanismBase):
     dof: int = 3
     n_actuators: int = 3
     pose_kind: str = 'spherical'
+    #: capacity axes: the moment of :meth:`wrench`, in the platform frame {P}
+    wrench_axes = ('Mx', 'My', 'Mz')
+    wrench_units = ('N·m', 'N·m', 'N·m')
     #: a forward solution must close every leg to this (|w_i . v_i - cos alpha2_i|)
     verify_tol: float = 1e-9
     _measure_name = 'k(J)'
@@ -467,6 +473,59 @@ class Spherical3Rrr(MechanismBase):
         reach, theta, _, _ = inverse_batch(self.gamma, self.beta, self.alpha1, self.alpha2, self.delta,
                                            rotation_matrices(p), self._signs)
         return reach, self._wrap(theta)
+
+    def inverse_batch(self, poses: np.ndarray, *, limits: bool = True) -> np.ndarray:
+        """Vectorised :meth:`inverse`: motor angles (N, 3) (rad, in ``[lo, lo + 2 pi)``) for
+        poses (N, 3) (rad), in the configured working mode.
+
+        A NaN row where a leg cannot close or (with ``limits``) a motor angle is outside its
+        range — where :meth:`inverse` raises :class:`~.base.UnreachablePose`.
+
+        :param limits: ``False``: no joint-limit check (as :meth:`inverse_poses`).
+        :raises ValueError: not an (N, 3) array, or a non-finite value.
+        """
+        p = as_poses(poses, 3)
+        reach, theta, _, _ = inverse_batch(self.gamma, self.beta, self.alpha1, self.alpha2, self.delta,
+                                           rotation_matrices(p), self._signs)
+        q = self._wrap(theta)
+        bad = ~reach
+        if limits:
+            bad |= ~within_limits(q, self._lo, self._hi)
+        q[bad] = np.nan
+        return q
+
+    def _velocity_batch(self, p: np.ndarray, limits: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``Jx`` (N, 3, 3), ``diag(Kq)`` (N, 3) at validated poses and the reachable mask."""
+        reach, theta, w, v = inverse_batch(self.gamma, self.beta, self.alpha1, self.alpha2, self.delta,
+                                           rotation_matrices(p), self._signs)
+        if limits:
+            reach = reach & within_limits(self._wrap(theta), self._lo, self._hi)
+        jx, kq = velocity_batch(self._u, w, v)
+        return jx, kq, reach
+
+    def jacobian_batch(self, poses: np.ndarray, *, limits: bool = True) -> np.ndarray:
+        """Vectorised :meth:`jacobian`: ``Kq^-1 Jx E(pose)`` (N, 3, 3).
+
+        A NaN matrix where :meth:`inverse_batch` has a NaN row; non-finite rows at a serial
+        singularity (``Kq_ii = 0``, where :meth:`angular_jacobian` raises ``SingularPose``).
+        """
+        p = as_poses(poses, 3)
+        jx, kq, reach = self._velocity_batch(p, limits)
+        with np.errstate(divide='ignore', invalid='ignore'):
+            jac = (jx / np.where(np.abs(kq) < 1e-12, 0.0, kq)[..., None]) @ euler_rate_matrix(p)
+        jac[~reach] = np.nan
+        return jac
+
+    def _statics_batch(self, p: np.ndarray) -> Statics:
+        """:meth:`wrench` in {P}: ``W_P = Q^T Jx^T Kq^-1 tau``, so ``G = Q^T (Kq^-1 Jx)^T`` and
+        ``H = Kq Jx^-T Q`` (finite at a serial singularity; regular where ``Jx`` is)."""
+        jx, kq, reach = self._velocity_batch(p, True)
+        qm = rotation_matrices(p)
+        with np.errstate(divide='ignore', invalid='ignore'):
+            g = np.swapaxes(qm, -1, -2) @ np.swapaxes(jx / np.where(np.abs(kq) < 1e-12, 0.0, kq)[..., None], -1, -2)
+        g[~reach] = np.nan
+        jx_inv_t, regular = regular_inverse(np.swapaxes(jx, -1, -2))
+        return Statics(reach, g, kq[..., None] * (jx_inv_t @ qm), regular & reach, np.zeros((p.shape[0], 3)))
 
     # ------------------------------------------------------------------ differential kinematics
     def elbow_axes(self, q: Sequence[float]) -> np.ndarray:

@@ -56,7 +56,7 @@ def main(argv: list[str] | None = None) -> int:
     sols = mech.forward(q)
     print(f'forward kinematics: {len(sols)} assembly modes')
     for k, s in enumerate(sols, 1):
-        err = np.max(np.abs(mech.inverse_batch(s[None])[0] - q))
+        err = np.max(np.abs(mech.inverse_batch(s[None], limits=False)[0] - q))
         mark = ' <- sample pose' if np.allclose(s, pose, atol=1e-9) else ''
         print(f'  {k}: x = {s[0] * 1e3:9.3f} mm, y = {s[1] * 1e3:9.3f} mm, theta = {math.degrees(s[2]):8.3f} deg'
               f'   (length error {err:.1e} m){mark}')

@@ -16,18 +16,29 @@ the intervals with a difference array (``np.add.at`` + ``cumsum``).
 
 The map ignores singularities, as the paper does; note that for the brace every pose with
 ``theta = 0`` is singular (``Rpr3.check_singularity``).
+
+Next to it, the force-transmission map (:func:`capacity_map`): at a chosen ``theta`` (the
+home pose's by default), the largest lateral force ``|Fx|`` (N, base frame) the three
+actuators can hold at each grid point of the workspace, both directions, with the
+actuator limit ``actuator.max_force`` of the YAML (``Mechanism.wrench_capacity_batch``:
+closed form ``min_i limit / |(J^-T)_i,x|``, vectorised over the grid). Near ``theta = 0``
+the legs are nearly parallel and the capacity collapses (0.71 N at the brace's 5 deg
+home with 250 N actuators; exactly 0 at ``theta = 0``).
 """
 from __future__ import annotations
 
 import argparse
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ['WorkspaceMap', 'workspace_map', 'annulus_centres', 'main']
+from ..mechanisms.base import Mechanism
+
+__all__ = ['WorkspaceMap', 'workspace_map', 'annulus_centres', 'CapacityMap', 'capacity_map', 'main']
 
 
 @dataclass
@@ -138,12 +149,66 @@ def workspace_map(base_anchors: np.ndarray, platform_anchors: np.ndarray,
     return WorkspaceMap(theta, area, x, y, union, float(grid), time.perf_counter() - t0)
 
 
-def _plot(ws: WorkspaceMap, out: Path, title: str) -> None:
+@dataclass
+class CapacityMap:
+    """Result of :func:`capacity_map` (SI units)."""
+
+    theta: float             #: orientation of every pose (rad)
+    x: np.ndarray            #: grid columns (m), shape (nx,)
+    y: np.ndarray            #: grid rows (m), shape (ny,)
+    capacity: np.ndarray     #: (ny, nx) capacity along ``axis`` (N or N·m); NaN where unreachable
+    limiting: np.ndarray     #: (ny, nx) index of the limiting actuator; -1 where none or unreachable
+    axis: str                #: the capacity axis (``'Fx'``: lateral force, base frame)
+    force_limits: np.ndarray  #: actuator limits used (N), shape (n_actuators,)
+    seconds: float           #: wall time of the computation (s)
+
+
+def capacity_map(mech: Mechanism, x: np.ndarray, y: np.ndarray, theta: float, force_limits: float | np.ndarray,
+                 *, axis: str = 'Fx', chunk: int = 65536) -> CapacityMap:
+    """Force-transmission capacity along ``axis`` over the grid ``x`` x ``y`` at orientation ``theta``.
+
+    Each grid point ``(x_i, y_j, theta)`` within stroke gets
+    ``mech.wrench_capacity_batch(...)[:, axis]``: the largest force along the axis, both
+    directions, that the actuators hold within ``force_limits`` (closed form, vectorised;
+    singular poses exact by LP, 0 along the unsupported direction).
+
+    :param mech: a planar mechanism (pose ``(x, y, theta)``).
+    :param x, y: grid columns and rows (m).
+    :param theta: orientation (rad).
+    :param force_limits: actuator limit(s) (N), a scalar or one per actuator.
+    :param axis: one of ``mech.wrench_axes`` (``'Fx'``, ``'Fy'``, ``'Mz'``).
+    :param chunk: poses per call (bounds the memory of the batch).
+    :raises ValueError: an unknown axis, bad limits.
+    """
+    t0 = time.perf_counter()
+    if axis not in mech.wrench_axes:
+        raise ValueError(f'axis: expected one of {mech.wrench_axes}, got {axis!r}')
+    a = mech.wrench_axes.index(axis)
+    xs = np.asarray(x, dtype=float).ravel()
+    ys = np.asarray(y, dtype=float).ravel()
+    gx, gy = np.meshgrid(xs, ys)
+    poses = np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, float(theta))])
+    cap = np.full(gx.size, np.nan)
+    which = np.full(gx.size, -1, dtype=int)
+    reach = np.flatnonzero(~np.isnan(mech.inverse_batch(poses)).any(axis=1))
+    limits = np.broadcast_to(np.asarray(force_limits, dtype=float), (mech.n_actuators,)).copy()
+    for start in range(0, reach.size, chunk):
+        rows = reach[start:start + chunk]
+        c, w = mech.wrench_capacity_batch(poses[rows], limits, return_limiting=True)
+        cap[rows], which[rows] = c[:, a], w[:, a]
+    return CapacityMap(float(theta), xs, ys, cap.reshape(gx.shape), which.reshape(gx.shape), axis, limits,
+                       time.perf_counter() - t0)
+
+
+def _plot(ws: WorkspaceMap, out: Path, title: str, caps: Sequence[CapacityMap] = ()) -> None:
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
+    from matplotlib.colors import LogNorm
 
-    fig, ax = plt.subplots(figsize=(7, 4.5), dpi=120)
+    n = 1 + len(caps)
+    fig, axes = plt.subplots(1, n, figsize=(7 * n, 4.5), dpi=120, squeeze=False)
+    ax = axes[0, 0]
     extent = (ws.x[0] * 1e3, ws.x[-1] * 1e3, ws.y[0] * 1e3, ws.y[-1] * 1e3)
     ax.imshow(ws.union, origin='lower', extent=extent, cmap='Blues', vmin=0, vmax=1.6,
               interpolation='nearest', aspect='equal')
@@ -153,16 +218,33 @@ def _plot(ws: WorkspaceMap, out: Path, title: str) -> None:
     ax.set_title(f'{title}\nunion over theta = {deg[0]:.1f}..{deg[-1]:.1f} deg: '
                  f'{ws.union_area * 1e4:.1f} cm^2')
     ax.grid(True, alpha=0.3)
+    for k, cm in enumerate(caps, start=1):
+        ax = axes[0, k]
+        positive = cm.capacity[np.isfinite(cm.capacity) & (cm.capacity > 0.0)]
+        img = np.where(cm.capacity > 0.0, cm.capacity, np.nan)         # 0 (singular) left blank on a log scale
+        norm = LogNorm(vmin=float(positive.min()), vmax=float(positive.max())) if positive.size else None
+        im = ax.imshow(img, origin='lower', extent=extent, cmap='viridis', norm=norm,
+                       interpolation='nearest', aspect='equal')
+        fig.colorbar(im, ax=ax, label=f'|{cm.axis}| capacity (N)')
+        ax.set_xlabel('x (mm)')
+        ax.set_ylabel('y (mm)')
+        lim = f'{cm.force_limits[0]:g} N' if np.all(cm.force_limits == cm.force_limits[0]) else \
+            f'{cm.force_limits.tolist()} N'
+        ax.set_title(f'largest |{cm.axis}| held (base frame), both directions\n'
+                     f'theta = {np.degrees(cm.theta):.1f} deg, actuators <= {lim}')
+        ax.grid(True, alpha=0.3)
     fig.tight_layout()
     fig.savefig(out)
     plt.close(fig)
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``brace-workspace config/lumbar_brace.yaml --out workspace.png [--step-deg 0.1 --grid 0.001]``."""
+    """``brace-workspace config/lumbar_brace.yaml --out workspace.png [--step-deg 0.1 --grid 0.001]
+    [--capacity-theta-deg 5 20] [--force-limit 250]``."""
     parser = argparse.ArgumentParser(
         prog='brace-workspace',
-        description="Workspace of a 3-RPR device (paper section IV-B): area per angle and a plot of the union.")
+        description="Workspace of a 3-RPR device (paper section IV-B): area per angle, a plot of the union, "
+                    "and next to it the map of the largest lateral force |Fx| the actuators hold.")
     parser.add_argument('device', help='device YAML (e.g. config/lumbar_brace.yaml) or device name')
     parser.add_argument('--out', default='workspace.png', help='PNG to write (default: %(default)s)')
     parser.add_argument('--theta-min-deg', type=float, default=0.0)
@@ -171,13 +253,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--grid', type=float, default=0.001, help='grid spacing (m)')
     parser.add_argument('--table-every-deg', type=float, default=5.0,
                         help='print the area every this many degrees (default: %(default)s)')
+    parser.add_argument('--capacity-theta-deg', type=float, nargs='*', default=None,
+                        help='orientation(s) (deg) of the |Fx| capacity map, one panel each '
+                             '(default: the home pose\'s; none given: no map)')
+    parser.add_argument('--force-limit', type=float, default=None,
+                        help='actuator force limit (N) of the capacity map (default: actuator.max_force of the YAML)')
     args = parser.parse_args(argv)
 
-    from ..config import ConfigError
-    from ..mechanisms import Rpr3, load_mechanism
+    from ..config import ConfigError, load_device_config
+    from ..mechanisms import Rpr3, mechanism_from_config
     try:
-        mech = load_mechanism(args.device)
-    except ConfigError as exc:
+        cfg = load_device_config(args.device)
+        mech = mechanism_from_config(cfg)
+        force_limit = float(cfg.get_path('actuator.max_force')) if args.force_limit is None else args.force_limit
+    except (ConfigError, TypeError, ValueError) as exc:
         print(f'brace-workspace: {exc}', file=sys.stderr)
         return 2
     if not isinstance(mech, Rpr3):
@@ -186,6 +275,11 @@ def main(argv: list[str] | None = None) -> int:
     if not (args.step_deg > 0 and args.grid > 0 and args.theta_max_deg >= args.theta_min_deg):
         print('brace-workspace: need --step-deg > 0, --grid > 0 and theta-max >= theta-min', file=sys.stderr)
         return 2
+    if not (force_limit > 0 and np.isfinite(force_limit)):
+        print(f'brace-workspace: the actuator force limit must be a positive number of N, got {force_limit!r}',
+              file=sys.stderr)
+        return 2
+    cap_deg = [float(np.degrees(mech.home_pose[2]))] if args.capacity_theta_deg is None else args.capacity_theta_deg
     n = int(round((args.theta_max_deg - args.theta_min_deg) / args.step_deg)) + 1
     theta_deg = args.theta_min_deg + args.step_deg * np.arange(n)
     lo, hi = mech.actuator_limits
@@ -200,9 +294,24 @@ def main(argv: list[str] | None = None) -> int:
     print(f'union: {ws.union_area * 1e4:.2f} cm^2 ({int(ws.union.sum())} grid points); '
           f'x {ws.x[0] * 1e3:.0f}..{ws.x[-1] * 1e3:.0f} mm, y {ws.y[0] * 1e3:.0f}..{ws.y[-1] * 1e3:.0f} mm; '
           f'computed in {ws.seconds * 1e3:.0f} ms')
+    caps = [capacity_map(mech, ws.x, ws.y, np.radians(d), force_limit) for d in cap_deg]
+    home = mech.home_pose
+    for d, cm in zip(cap_deg, caps):
+        vals = cm.capacity[np.isfinite(cm.capacity)]
+        if vals.size == 0:
+            print(f'capacity |Fx| at theta = {d:.1f} deg: no grid point within stroke')
+            continue
+        print(f'capacity |Fx| at theta = {d:.1f} deg ({force_limit:g} N per actuator, {vals.size} grid points): '
+              f'min {vals.min():.3g} N, median {np.median(vals):.3g} N, max {vals.max():.3g} N; '
+              f'computed in {cm.seconds * 1e3:.0f} ms')
+        if abs(np.radians(d) - home[2]) < 1e-12:
+            cap, lim = mech.wrench_capacity(home, force_limit, return_limiting=True)
+            who = f'limited by actuator {mech.actuator_names[lim[0]]}' if lim[0] >= 0 else 'no actuator limit binds'
+            print(f'  at the home pose (x = {home[0] * 1e3:.1f} mm, y = {home[1] * 1e3:.1f} mm): '
+                  f'{cap[0]:.3g} N, {who}')
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    _plot(ws, out, f'{Path(str(args.device)).stem}: 3-RPR workspace (y > 0)')
+    _plot(ws, out, f'{Path(str(args.device)).stem}: 3-RPR workspace (y > 0)', caps)
     print(f'wrote {out}')
     return 0
 
