@@ -36,6 +36,7 @@ setup(
             'brace-fourbar-report = brace_control.tools.fourbar_report:main',
             'brace-spm-study = brace_control.tools.spm_study:main',
             'brace-continuum-plot = brace_control.tools.continuum_plot:main',
+            'brace-design = brace_control.tools.design:main',
         ],
     },
 )

@@ -27,7 +27,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from brace_control.can import BraceMaster  # noqa: E402
-from brace_control.can.master import set_thread_priority  # noqa: E402
+from brace_control.can.cycle import set_thread_priority  # noqa: E402
 from brace_control.can.timing import PeriodStats, run_periodic  # noqa: E402
 from brace_control.config import load_device_config  # noqa: E402
 from brace_control.mechanisms import mechanism_from_config  # noqa: E402

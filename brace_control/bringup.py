@@ -47,9 +47,10 @@ from pathlib import Path
 from typing import Any
 
 from .config import ConfigError, load_device_config, resolve_device_file
+from .nodes import topics
 
 __all__ = ['NODE_NAMES', 'STACK_LINKS', 'BringUp', 'ProcessBringUp', 'node_class', 'find_executable',
-           'disable_drives', 'missing_links', 'wait_for_links', 'main']
+           'disable_drives', 'missing_links', 'wait_for_links', 'wait_until_ready', 'main']
 
 #: the nodes of a device, in data-flow order
 NODE_NAMES = ('trajectory_node', 'ik_node', 'can_driver_node', 'kinetics_node')
@@ -111,10 +112,14 @@ def call_trigger(node: Any, service: str, *, timeout: float = 5.0,
 
 
 #: the stack's topic links: (topic, publishing node, subscribing node)
-STACK_LINKS = (('/brace/pose_setpoint', 'trajectory_node', 'ik_node'),
-               ('/brace/actuator_setpoint', 'ik_node', 'can_driver_node'),
-               ('/brace/joint_states', 'can_driver_node', 'kinetics_node'),
-               ('/brace/pose', 'kinetics_node', 'trajectory_node'))
+STACK_LINKS = ((topics.POSE_TRAJECTORY, 'trajectory_node', 'ik_node'),
+               (topics.ACTUATOR_TRAJECTORY, 'ik_node', 'can_driver_node'),
+               (topics.EXECUTION_STATUS, 'can_driver_node', 'trajectory_node'),
+               (topics.EXECUTION_STATUS, 'ik_node', 'trajectory_node'),
+               (topics.DRIVER_STATE, 'can_driver_node', 'trajectory_node'),
+               (topics.ACTUATOR_SETPOINT, 'ik_node', 'can_driver_node'),
+               (topics.JOINT_STATES, 'can_driver_node', 'kinetics_node'),
+               (topics.POSE, 'kinetics_node', 'trajectory_node'))
 
 
 def missing_links(node: Any, nodes: Sequence[str] = NODE_NAMES) -> list[str]:
@@ -149,6 +154,55 @@ def wait_for_links(node: Any, *, timeout: float = 20.0, nodes: Sequence[str] = N
         time.sleep(0.05)
 
 
+def wait_until_ready(node: Any, *, timeout: float = 20.0, driver: str | None = 'enabled',
+                     nodes: Sequence[str] = ('trajectory_node', 'ik_node')) -> None:
+    """Wait until each of ``nodes`` reports on ``/diagnostics`` that its trajectory output
+    has a subscriber (``subscribers <topic>`` >= 1, by that node's own discovery), and the
+    trajectory node that the driver's state is ``driver`` (``None``: any).
+
+    :func:`wait_for_links` sees the graph from ``node``'s side; a node process matches the
+    others in its own discovery, maybe later: a goal planned before the IK node matched is
+    rejected ("nothing subscribes to /brace/pose_trajectory"). ``node`` must be spinning in
+    another thread (its subscription receives the diagnostics, published at 1 Hz).
+
+    :raises TimeoutError: not ready after ``timeout`` s (what was last reported, named).
+    """
+    from diagnostic_msgs.msg import DiagnosticArray
+    seen: dict[str, dict[str, str]] = {}
+    lock = threading.Lock()
+
+    def on_diagnostics(msg: Any) -> None:
+        with lock:
+            for st in msg.status:
+                name = st.name.rsplit('/', 1)[-1]
+                if name in nodes:
+                    seen[name] = {kv.key: kv.value for kv in st.values}
+
+    def ready() -> bool:
+        with lock:
+            for name in nodes:
+                values = seen.get(name)
+                if values is None:
+                    return False
+                counts = [v for k, v in values.items() if k.startswith('subscribers ')]
+                if not counts or any(not v.isdigit() or int(v) < 1 for v in counts):
+                    return False
+            if driver is not None and 'trajectory_node' in nodes:
+                return seen['trajectory_node'].get('driver', '').startswith(driver)
+            return True
+
+    sub = node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, on_diagnostics, 50)
+    try:
+        deadline = time.monotonic() + timeout
+        while not ready():
+            if time.monotonic() > deadline:
+                with lock:
+                    raise TimeoutError(f'the stack is not ready after {timeout} s: {seen or "no diagnostics"}')
+            time.sleep(0.05)
+    finally:
+        node.destroy_subscription(sub)
+
+
 def disable_drives(node: Any, *, timeout: float = 5.0, executor: Any = None) -> tuple[bool, str]:
     """Call every ``.../disable`` Trigger service in the graph (the CAN driver's)."""
     deadline = time.monotonic() + min(timeout, 2.0)
@@ -175,19 +229,20 @@ class BringUp:
     :param executor: ``'multi'``: one :class:`MultiThreadedExecutor` holds every node
         (``num_threads``, default one per node + 1); each node's callbacks stay in their
         own mutually exclusive group, the driver's blocking services in a separate one.
-        ``'per-node'`` (default): each node on its own executor in its own thread (a
-        ``SingleThreadedExecutor``; the driver a 2-thread ``MultiThreadedExecutor`` so its
-        services, which block up to ~1 s, never hold up the setpoint stream). Same
-        isolation between nodes, less executor overhead: the CAN driver's 500 Hz SYNC
-        thread (same interpreter, same GIL) keeps its period far better, see
-        bench/RESULTS.md "End to end".
+        ``'per-node'`` (default): each node on its own executor (:func:`~.nodes.runner.
+        make_executor`: the events executor where rclpy has it) in its own thread (the driver's services run their work in a thread of their own and await it,
+        so they never hold up its streams). Same isolation between nodes, less executor
+        overhead: the CAN driver's SYNC thread (same interpreter, same GIL) keeps its period
+        far better, see bench/RESULTS.md.
     """
 
     def __init__(self, config: str | Path, *, sim: bool = True,
                  nodes: Sequence[str] = NODE_NAMES, context: Any = None,
                  extra_args: Sequence[str] = (), num_threads: int | None = None,
                  executor: str = 'per-node') -> None:
-        from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
+        from rclpy.executors import MultiThreadedExecutor
+
+        from .nodes.runner import make_executor
         if executor not in ('multi', 'per-node'):
             raise ValueError(f"executor must be 'multi' or 'per-node', got {executor!r}")
         self.config_path = resolve_device_file(config)
@@ -200,6 +255,7 @@ class BringUp:
         self._executors: list[Any] = []
         self._args = ros_args(self.config_path, sim=sim, extra=extra_args)
         self._threads: list[threading.Thread] = []
+        self._stop = threading.Event()
         self._helper = None
         self._closed = False
         shared = (MultiThreadedExecutor(num_threads=num_threads or len(self.names) + 1,
@@ -216,8 +272,7 @@ class BringUp:
                 if shared is not None:
                     shared.add_node(node)
                     continue
-                ex = (MultiThreadedExecutor(num_threads=2, context=context) if name == DRIVER
-                      else SingleThreadedExecutor(context=context))
+                ex = make_executor(context=context)
                 ex.add_node(node)
                 self._executors.append(ex)
         except BaseException:
@@ -245,11 +300,13 @@ class BringUp:
             self._threads.append(t)
         return self
 
-    @staticmethod
-    def _spin(executor: Any) -> None:
+    def _spin(self, executor: Any) -> None:
+        # spin_once in a loop, not spin(): rclpy's events executor (Kilted) busy-waits a
+        # core in spin() and blocks other threads adding entities to its nodes meanwhile
         from rclpy.executors import ExternalShutdownException
         try:
-            executor.spin()
+            while not self._stop.is_set() and executor.context.ok():
+                executor.spin_once(timeout_sec=0.1)
         except ExternalShutdownException:
             pass
 
@@ -285,10 +342,11 @@ class BringUp:
                     stop()
                 except Exception as exc:  # noqa: BLE001 - keep shutting the others down
                     node.get_logger().error(f'shutdown: {exc}')
-        for ex in self._executors:
-            ex.shutdown(timeout_sec=timeout)
+        self._stop.set()
         for t in self._threads:
             t.join(timeout)
+        for ex in self._executors:
+            ex.shutdown(timeout_sec=timeout)
         for node in list(self.nodes.values()) + ([self._helper] if self._helper else []):
             node.destroy_node()
 

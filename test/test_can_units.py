@@ -5,13 +5,17 @@ Oracles are the numbers of docs/can.md and CiA 402-2 tables, not the code.
 import math
 import struct
 import threading
+from pathlib import Path
 
+import canopen
 import numpy as np
 import pytest
+from canopen import objectdictionary as od
 
-from brace_control.can.cia402 import (Controlword, State402, controlword_towards, decode_state,
-                                      describe_statusword, emcy_description)
-from brace_control.can.pdo import RPDO1, TPDO1, frame_bits, pdo_mapping_writes
+from brace_control.can.cia402 import (STATE_STATUSWORD, Controlword, EmcyCode, ErrorRegister,
+                                      NmtState, State402, controlword_towards, decode_state,
+                                      describe_statusword, emcy_description, error_register_bits)
+from brace_control.can.pdo import RPDO1, RPDO2, TPDO1, frame_bits, pdo_mapping_writes
 from brace_control.can.timing import PeriodStats, run_periodic
 from brace_control.can.units import AxisScaling, scaling_from_config
 from brace_control.config import ConfigError, load_device_config
@@ -99,19 +103,58 @@ def test_emcy_codes_decode_exact_then_by_class():
 
 
 def test_pdo_layouts_match_docs_can_md():
-    assert RPDO1.size == 6 and TPDO1.size == 8
+    assert RPDO1.size == 6 and TPDO1.size == 8 and RPDO2.size == 4
     assert RPDO1.pack(0x0F, -2) == struct.pack('<Hi', 0x0F, -2)
-    writes = {(w.index, w.subindex, w.value) for w in pdo_mapping_writes(2)}
+    assert RPDO2.pack(-532480) == struct.pack('<i', -532480)     # 60B1h, counts/s
+    seq = [(w.index, w.subindex, w.value) for w in pdo_mapping_writes(2)]
+    writes = set(seq)
     assert (0x1600, 1, 0x60400010) in writes and (0x1600, 2, 0x607A0020) in writes
     assert (0x1A00, 3, 0x24010010) in writes and (0x1800, 1, 0x182) in writes
-    assert (0x1401, 1, 0x80000302) in writes          # RPDO2 disabled
+    # RPDO2: 60B1h:00, 32 bit, transmission type 1, COB-ID 300h + id; CiA 301 order:
+    # invalid COB-ID, count 0, entry, count, type, valid COB-ID
+    rpdo2 = [w for w in seq if w[0] in (0x1401, 0x1601)]
+    assert rpdo2 == [(0x1401, 1, 0x80000302), (0x1601, 0, 0), (0x1601, 1, 0x60B10020),
+                     (0x1601, 0, 1), (0x1401, 2, 1), (0x1401, 1, 0x302)]
+    # the rest disabled: RPDO3/4, TPDO2-4
+    for index, cob in ((0x1402, 0x402), (0x1403, 0x502), (0x1801, 0x282), (0x1802, 0x382),
+                       (0x1803, 0x482)):
+        assert [w[2] for w in seq if w[:2] == (index, 1)] == [0x80000000 | cob]
+
+
+def test_eds_describes_the_velocity_offset_and_rpdo2():
+    eds = canopen.import_od(str(Path(__file__).resolve().parent.parent / 'config' / 'lumbar_drive.eds'), 2)
+    vo = eds[0x60B1]
+    assert vo.data_type == od.INTEGER32 and vo.pdo_mappable and vo.writable and vo.readable
+    assert eds[0x1401][1].default == 0x302 and eds[0x1401][2].default == 1
+    assert eds[0x1601][0].default == 1 and eds[0x1601][1].default == 0x60B10020
+    assert eds[0x6062].data_type == od.INTEGER32 and eds[0x6062].pdo_mappable
+
+
+def test_cia402_state_bits_error_register_and_nmt_codes():
+    # CiA 402-2 table 30: the bits a drive in each state shows (x = 0)
+    assert STATE_STATUSWORD[State402.SWITCH_ON_DISABLED] == 0b0100_0000
+    assert STATE_STATUSWORD[State402.READY_TO_SWITCH_ON] == 0b0010_0001
+    assert STATE_STATUSWORD[State402.OPERATION_ENABLED] == 0b0010_0111
+    assert STATE_STATUSWORD[State402.QUICK_STOP_ACTIVE] == 0b0000_0111
+    assert STATE_STATUSWORD[State402.FAULT] == 0b0000_1000
+    for state, bits in STATE_STATUSWORD.items():
+        assert decode_state(bits) is state
+    # CiA 301 1001h: generic bit 0 with the class bit (4 communication, 5 device profile)
+    assert error_register_bits(EmcyCode.FOLLOWING_ERROR) == ErrorRegister.GENERIC | ErrorRegister.DEVICE_PROFILE == 0x21
+    assert error_register_bits(EmcyCode.HEARTBEAT) == 0x11
+    assert error_register_bits(0x2310) == 0x03 and error_register_bits(0x5530) == 0x01
+    assert error_register_bits(EmcyCode.NO_ERROR) == 0
+    assert NmtState.INITIALISING == NmtState.BOOTUP == 0x00 and NmtState.PRE_OPERATIONAL == 0x7F
+    assert emcy_description(EmcyCode.REFERENCE_LIMIT).startswith('reference limit')
 
 
 def test_bus_load_estimate_of_docs_can_md():
-    # SYNC + 3 RPDO1 + 3 TPDO1 per 2 ms: docs/can.md says ~750 bits, ~37 %
-    bits = frame_bits(0) + 3 * frame_bits(6) + 3 * frame_bits(8)
-    assert 650 <= bits <= 820
-    assert 0.3 < bits / 0.002 / 1e6 < 0.42
+    # SYNC + 3 RPDO1 + 3 RPDO2 + 3 TPDO1 per 2 ms, worst-case stuffing: docs/can.md says
+    # 1090 bits, 55 % at 1 Mbit/s (805 bits, 40 %, without the three RPDO2)
+    bits = frame_bits(0) + 3 * frame_bits(6) + 3 * frame_bits(4) + 3 * frame_bits(8)
+    # by hand: 47 + 8 dlc + floor((33 + 8 dlc) / 4) per frame
+    assert bits == (47 + 8) + 3 * (47 + 48 + 20) + 3 * (47 + 32 + 16) + 3 * (47 + 64 + 24) == 1090
+    assert 0.54 < bits / 0.002 / 1e6 < 0.55
 
 
 def test_periodic_loop_keeps_absolute_deadlines():

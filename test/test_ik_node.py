@@ -120,3 +120,113 @@ def test_no_setpoint_dropped_at_200_hz(rig):
 def test_out_of_range_parameter_fails_at_start_up(ros):  # noqa: F811
     with pytest.raises(ConfigError, match='trajectory.rate_hz'):
         ros.device_node(IkNode, **{'trajectory.rate_hz': 0.0})
+
+
+# ---------------------------------------------------------------------------- planned motions
+def _plan(t):
+    """A minimum-jerk motion (thesis 002 eq. 2.2) with its exact derivatives."""
+    p0, p1, T = np.array([0.0, 0.39, 0.1]), np.array([0.008, 0.40, 0.16]), 1.2
+    s = np.clip(t / T, 0.0, 1.0)[:, None]
+    d = p1 - p0
+    return (p0 + d * (10 * s**3 - 15 * s**4 + 6 * s**5), d * (30 * s**2 - 60 * s**3 + 30 * s**4) / T,
+            d * (60 * s - 180 * s**2 + 120 * s**3) / T**2)
+
+
+@pytest.fixture
+def motion_rig(ros):  # noqa: F811
+    from diagnostic_msgs.msg import DiagnosticStatus
+    from trajectory_msgs.msg import JointTrajectory, MultiDOFJointTrajectory
+
+    from brace_control.nodes import topics
+    ik = ros.device_node(IkNode)
+    test = ros.node('ik_motion_test')
+    out = ros.collect(test, JointTrajectory, topics.ACTUATOR_TRAJECTORY, topics.TRAJECTORY_QOS)
+    events = ros.collect(test, DiagnosticStatus, topics.EXECUTION_STATUS, topics.STATUS_QOS)
+    pub = test.create_publisher(MultiDOFJointTrajectory, topics.POSE_TRAJECTORY, topics.TRAJECTORY_QOS)
+    ros.wait_matched(pub)
+    ros.spin_until(lambda: ik._traj_pub.get_subscription_count() >= 1
+                   and ik._status_pub.get_subscription_count() >= 1, what='ik -> test match')
+    return ros, ik, pub, out, events
+
+
+def test_a_planned_motion_becomes_actuator_knots_within_1_um_of_the_ik(motion_rig):
+    """Sampled at SYNC times (2 ms), the actuator motion rebuilt from the knots by quintic
+    Hermite interpolation (scipy's BPoly, independent of the code) equals the IK of the
+    planned poses (seed 001 eq. 3 written out above) within 1 um; its rates are those of
+    the IK along the plan."""
+    from scipy.interpolate import BPoly
+
+    from brace_control.nodes.msgs import joint_knots_from_msg, pose_trajectory_msg
+    ros, ik, pub, out, _ = motion_rig
+    t = np.linspace(0.0, 1.2, 25)                      # the trajectory node's coarse knots
+    P, V, A_ = _plan(t)
+    pub.publish(pose_trajectory_msg(t, P, V, A_, frame_id='brace_base', joint_name='brace_platform',
+                                    stamp=sec_to_stamp(42.5), kind='planar'))
+    ros.spin_until(lambda: len(out) == 1, what='the actuator trajectory')
+    msg = out[0]
+    assert stamp_to_ns(msg.header.stamp) == 42_500_000_000
+    assert list(msg.joint_names) == list(CFG['mechanism']['actuator_names'])
+    _, tk, Q, QD, QDD = joint_knots_from_msg(msg, msg.joint_names)
+    spline = BPoly.from_derivatives(tk, np.stack([Q, QD, QDD], axis=1))
+    ts = np.arange(0.0, 1.2, 0.002)
+    truth = np.array([lengths(p) for p in _plan(ts)[0]])
+    assert np.max(np.abs(spline(ts) - truth)) < 1e-6
+    h = 1e-5
+    inner = ts[(ts > h) & (ts < 1.2 - h)]
+    rate = (np.array([lengths(p) for p in _plan(inner + h)[0]])
+            - np.array([lengths(p) for p in _plan(inner - h)[0]])) / (2 * h)
+    assert np.max(np.abs(spline(inner, 1) - rate)) < 1e-6
+    np.testing.assert_array_equal(QD[-1], 0.0)          # ends at rest, exactly
+    np.testing.assert_array_equal(QDD[-1], 0.0)
+
+
+def test_a_motion_through_an_unreachable_pose_is_rejected_with_its_stamp(motion_rig):
+    from brace_control.nodes.msgs import pose_trajectory_msg, status_values
+    ros, ik, pub, out, events = motion_rig
+    t = np.linspace(0.0, 1.0, 11)
+    P = np.array([[0.0, 0.39 + 0.12 * s, 0.1] for s in t / t[-1]])   # legs beyond 0.440 m
+    pub.publish(pose_trajectory_msg(t, P, np.zeros_like(P), np.zeros_like(P), frame_id='brace_base',
+                                    joint_name='brace_platform', stamp=sec_to_stamp(7.0), kind='planar'))
+    ros.spin_until(lambda: len(events) == 1, what='the rejection')
+    values = status_values(events[0])
+    assert events[0].message == 'rejected' and values['stamp'] == str(7_000_000_000)
+    assert 'no inverse kinematics' in values['reason']
+    ros.spin_for(0.1)
+    assert out == []
+
+
+def test_an_empty_trajectory_is_passed_on_as_a_stop(motion_rig):
+    from trajectory_msgs.msg import MultiDOFJointTrajectory
+    ros, ik, pub, out, _ = motion_rig
+    stop = MultiDOFJointTrajectory()
+    stop.header.frame_id = 'brace_base'
+    stop.header.stamp = sec_to_stamp(3.25)
+    stop.joint_names = ['brace_platform']
+    pub.publish(stop)
+    ros.spin_until(lambda: len(out) == 1, what='the stop')
+    assert len(out[0].points) == 0 and stamp_to_ns(out[0].header.stamp) == 3_250_000_000
+
+
+def test_a_motion_with_no_driver_listening_is_rejected_not_lost(ros):  # noqa: F811
+    """Nothing subscribes to /brace/actuator_trajectory (no driver): the converted motion
+    would be lost on a topic that keeps no history; it is rejected with the reason instead."""
+    from diagnostic_msgs.msg import DiagnosticStatus
+    from trajectory_msgs.msg import MultiDOFJointTrajectory
+
+    from brace_control.nodes import topics
+    from brace_control.nodes.msgs import pose_trajectory_msg, status_values
+    ik = ros.device_node(IkNode)
+    test = ros.node('ik_no_driver_test')
+    events = ros.collect(test, DiagnosticStatus, topics.EXECUTION_STATUS, topics.STATUS_QOS)
+    pub = test.create_publisher(MultiDOFJointTrajectory, topics.POSE_TRAJECTORY, topics.TRAJECTORY_QOS)
+    ros.wait_matched(pub)
+    ros.spin_until(lambda: ik._status_pub.get_subscription_count() >= 1, what='ik -> test match')
+    assert ik._traj_pub.get_subscription_count() == 0
+    t = np.linspace(0.0, 1.2, 25)
+    P, V, A_ = _plan(t)
+    pub.publish(pose_trajectory_msg(t, P, V, A_, frame_id='brace_base', joint_name='brace_platform',
+                                    stamp=sec_to_stamp(9.5), kind='planar'))
+    ros.spin_until(lambda: len(events) == 1, what='the rejection')
+    values = status_values(events[0])
+    assert events[0].message == 'rejected' and values['stamp'] == str(9_500_000_000)
+    assert topics.ACTUATOR_TRAJECTORY in values['reason'] and 'can_driver_node' in values['reason']

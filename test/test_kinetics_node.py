@@ -1,4 +1,9 @@
-"""kinetics_node with real rclpy and DDS: joint states in, measured pose and wrench out."""
+"""kinetics_node with real rclpy and DDS: joint states in; the load-aware pose estimate, its
+covariance and the wrench out.
+
+Oracles written here from the seed's eq. 3 and kinetics (leg vectors, W = sum f_i u_i) and
+the leg model f = k (q - l(p)): a ring at pose p with leg forces f reads q = l(p) + f / k.
+"""
 from __future__ import annotations
 
 import math
@@ -6,13 +11,16 @@ import math
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from geometry_msgs.msg import PoseStamped, WrenchStamped
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, WrenchStamped
+from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import JointState
 
 from brace_control.config import load_device_config
 from brace_control.nodes.kinetics_node import KineticsNode
-from brace_control.nodes.msgs import joint_state, planar_pose_from_msg, sec_to_stamp, stamp_to_ns
-from ros_helpers import LUMBAR_YAML, RELIABLE_10, ros  # noqa: F401
+from brace_control.mechanisms import UnreachablePose, load_mechanism
+from brace_control.nodes.msgs import (joint_state, planar_pose_from_msg, pose_covariance_6x6,
+                                      sec_to_stamp, stamp_to_ns)
+from ros_helpers import LUMBAR_YAML, RELIABLE_10, REPO, ros  # noqa: F401
 
 pytestmark = pytest.mark.ros
 
@@ -20,6 +28,8 @@ CFG = load_device_config(LUMBAR_YAML)
 A = np.asarray(CFG['mechanism']['base_anchors'], float).reshape(3, 2)
 B = np.asarray(CFG['mechanism']['platform_anchors'], float).reshape(3, 2)
 NAMES = list(CFG['mechanism']['actuator_names'])
+K_LEG = float(CFG['actuator']['stiffness'])
+DEG = math.pi / 180.0
 
 
 def rot(th: float) -> np.ndarray:
@@ -34,6 +44,30 @@ def legs(pose):
 
 def lengths(pose) -> np.ndarray:
     return np.linalg.norm(legs(pose)[0], axis=1)
+
+
+def encoders(pose, forces) -> np.ndarray:
+    """What the encoders read when the ring is at ``pose`` and the legs carry ``forces``
+    (push positive): each leg is the drive in series with k, f = k (q - l(p))."""
+    return lengths(pose) + np.asarray(forces, float) / K_LEG
+
+
+def jacobian(pose) -> np.ndarray:
+    """Rows (u_i, (R b_i) x u_i): dl_i = J (dx, dy, dtheta)."""
+    d, rb = legs(pose)
+    u = d / np.linalg.norm(d, axis=1)[:, None]
+    return np.column_stack([u, rb[:, 0] * u[:, 1] - rb[:, 1] * u[:, 0]])
+
+
+def expected_covariance(pose, forces) -> np.ndarray:
+    """The YAML's error budget per leg (encoder quantum 1 mm / 8192 read and homed, load cell
+    noise and count, stiffness known to 5 %), through the weighted least squares."""
+    act, kin = CFG['actuator'], CFG['kinetics']
+    res = act['screw_lead'] / act['encoder_counts_per_rev']
+    var = (res ** 2 / 6.0 + (kin['load_cell_noise'] ** 2 + act['load_cell_n_per_count'] ** 2 / 12.0) / K_LEG ** 2
+           + (np.asarray(forces) * kin['stiffness_rel_std'] / K_LEG) ** 2)
+    j = jacobian(pose)
+    return np.linalg.inv(j.T @ np.diag(1.0 / var) @ j)
 
 
 def body_wrench_platform_frame(pose, forces) -> np.ndarray:
@@ -54,9 +88,11 @@ def rig(ros):  # noqa: F811
     poses = ros.collect(test, PoseStamped, '/brace/pose')
     wrenches = ros.collect(test, WrenchStamped, '/brace/wrench')
     diags = ros.collect(test, DiagnosticArray, '/diagnostics')
+    ros.covariances = ros.collect(test, PoseWithCovarianceStamped, '/brace/pose_with_covariance')
     pub = test.create_publisher(JointState, '/brace/joint_states', RELIABLE_10)
     ros.wait_matched(pub)
     ros.spin_until(lambda: kin._pose_pub.get_subscription_count() >= 1
+                   and kin._pose_cov_pub.get_subscription_count() >= 1
                    and kin._wrench_pub.get_subscription_count() >= 1, what='kinetics -> test')
     return ros, kin, pub, poses, wrenches, diags
 
@@ -66,25 +102,82 @@ def _statuses(diags, level=None):
             and (level is None or s.level == level)]
 
 
-def test_pose_and_wrench_from_lengths_and_load_cells(rig):
+def test_pose_covariance_and_wrench_from_lengths_and_load_cells(rig):
     ros, kin, pub, poses, wrenches, _ = rig
     pose = np.array([0.0, 0.37, 0.17])
     forces = [40.0, -25.0, 60.0]
     # actuators listed in another order than the YAML: matched by name
     order = [2, 0, 1]
-    q = lengths(pose)
+    q = encoders(pose, forces)
     pub.publish(joint_state([NAMES[i] for i in order], position=q[order],
                             velocity=[0.0] * 3, effort=np.asarray(forces)[order],
                             stamp=sec_to_stamp(7.25)))
-    ros.spin_until(lambda: poses and wrenches, what='pose and wrench')
+    ros.spin_until(lambda: poses and wrenches and ros.covariances, what='pose, covariance and wrench')
     assert poses[0].header.frame_id == 'brace_base'
-    assert stamp_to_ns(poses[0].header.stamp) == 7_250_000_000
     np.testing.assert_allclose(planar_pose_from_msg(poses[0]), pose, atol=1e-9)
     w = wrenches[0]
     assert w.header.frame_id == 'brace_platform'
     got = [w.wrench.force.x, w.wrench.force.y, w.wrench.torque.z]
     np.testing.assert_allclose(got, body_wrench_platform_frame(pose, forces), rtol=1e-9, atol=1e-9)
     assert (w.wrench.force.z, w.wrench.torque.x, w.wrench.torque.y) == (0.0, 0.0, 0.0)
+    c = ros.covariances[0]
+    assert c.header.frame_id == 'brace_base'
+    for m in (poses[0], w, c):                                  # the joint state's stamp, all three
+        assert stamp_to_ns(m.header.stamp) == 7_250_000_000
+    assert c.pose.pose == poses[0].pose
+    cov = np.asarray(c.pose.covariance).reshape(6, 6)           # (x, y, z, rot x, rot y, rot z)
+    xy_yaw = [0, 1, 5]
+    np.testing.assert_allclose(cov[np.ix_(xy_yaw, xy_yaw)], expected_covariance(pose, forces), rtol=1e-6)
+    np.testing.assert_allclose(np.diag(cov)[[2, 3, 4]], CFG['kinetics'].get('unobserved_variance', 1e6))
+    off = np.ones((6, 6), bool)
+    off[np.ix_(xy_yaw, xy_yaw)] = False
+    np.fill_diagonal(off, False)
+    assert np.all(cov[off] == 0.0)
+    assert np.all(np.linalg.eigvalsh(cov[np.ix_(xy_yaw, xy_yaw)]) > 0.0)
+
+
+def test_loaded_ring_pose_is_the_legs_not_the_encoders(rig):
+    """Near the singular theta = 0 the encoder lengths of a loaded brace are millimetres of
+    pose away from the ring: the node publishes the ring's pose (and the wrench there)."""
+    ros, kin, pub, poses, wrenches, _ = rig
+    pose = np.array([0.004, 0.395, 3.0 * DEG])
+    forces = np.array([-180.0, 90.0, -240.0])
+    q = encoders(pose, forces)
+    try:                                                       # the old answer: none, or mm off
+        naive = load_mechanism(LUMBAR_YAML).forward_nearest(q, pose)
+        assert np.max(np.abs(naive - pose)[:2]) > 1e-3
+    except UnreachablePose:
+        pass
+    pub.publish(joint_state(NAMES, position=q, effort=forces, stamp=sec_to_stamp(3.0)))
+    ros.spin_until(lambda: poses and wrenches, what='pose and wrench')
+    np.testing.assert_allclose(planar_pose_from_msg(poses[0]), pose, atol=1e-8)
+    w = wrenches[0]
+    np.testing.assert_allclose([w.wrench.force.x, w.wrench.force.y, w.wrench.torque.z],
+                               body_wrench_platform_frame(pose, forces), rtol=1e-6, atol=1e-6)
+    assert kin.estimate.exact and kin.diagnostics.values['solution'] == 'exact'
+
+
+def test_lengths_that_cannot_close_give_a_least_squares_pose_and_a_warning(rig):
+    """Dead load cells on a brace stopped under load: the encoder lengths cannot close
+    (legs 1 and 3, 250 um short). A pose is still published, flagged least squares, the
+    residual in /diagnostics and on the node."""
+    ros, kin, pub, poses, _, diags = rig
+    start = np.array([0.0, 0.392, 3.0 * DEG])
+    pub.publish(joint_state(NAMES, position=lengths(start), effort=[0.0] * 3))
+    ros.spin_until(lambda: len(poses) == 1, what='first pose')
+    bad = lengths(start) + np.array([-250e-6, 60e-6, -250e-6])
+    c2 = 0.5 * (bad[0] ** 2 + bad[2] ** 2 - 2 * bad[1] ** 2)  # parallelogram law: cos(theta) > 1
+    assert (0.217 ** 2 + 0.195 ** 2 - c2) / (2 * 0.217 * 0.195) > 1.0
+    for k in range(30):
+        pub.publish(joint_state(NAMES, position=bad, effort=[0.0] * 3, stamp=sec_to_stamp(1 + 0.01 * k)))
+        ros.spin_until(lambda: len(poses) == k + 2, what=f'pose {k + 2}')
+    ros.spin_until(lambda: any('least squares' in s.message for s in _statuses(diags, DiagnosticStatus.WARN)),
+                   what='least-squares WARN')
+    assert not kin.estimate.exact and kin.failed == 0
+    np.testing.assert_allclose(kin.residual, bad - lengths(kin.estimate.pose), atol=1e-12)
+    assert np.max(np.abs(kin.residual)) > 1e-6
+    assert kin.diagnostics.values['solution'] == 'least squares'
+    assert planar_pose_from_msg(poses[-1])[1] > 0.3             # the brace's assembly mode
 
 
 def test_branch_is_tracked_along_a_motion(rig):
@@ -99,11 +192,17 @@ def test_branch_is_tracked_along_a_motion(rig):
 
 
 def test_no_effort_gives_pose_but_no_wrench(rig):
+    """Without load cells the leg deflection is only bounded by the force limit: the pose of
+    the encoder lengths, with that in its covariance."""
     ros, kin, pub, poses, wrenches, _ = rig
-    pub.publish(joint_state(NAMES, position=lengths([0.0, 0.37, 0.17])))
-    ros.spin_until(lambda: poses, what='pose')
+    pose = [0.0, 0.37, 0.17]
+    pub.publish(joint_state(NAMES, position=lengths(pose)))
+    ros.spin_until(lambda: poses and ros.covariances, what='pose')
     ros.spin_for(0.1)
     assert wrenches == []
+    np.testing.assert_allclose(planar_pose_from_msg(poses[0]), pose, atol=1e-9)
+    cov = np.asarray(ros.covariances[0].pose.covariance).reshape(6, 6)
+    assert cov[0, 0] > 100.0 * expected_covariance(pose, [0.0] * 3)[0, 0]
 
 
 def test_malformed_joint_state_is_reported_and_not_used(rig):
@@ -144,3 +243,64 @@ def test_positions_outside_the_stroke_are_not_turned_into_a_pose(rig):
     ros.spin_until(lambda: _statuses(diags, DiagnosticStatus.WARN), what='WARN diagnostic')
     ros.spin_for(0.05)
     assert poses == [] and 'not homed' in kin.diagnostics.message
+
+
+@pytest.mark.parametrize('device', sorted(p.stem for p in (REPO / 'config').glob('*.yaml')))
+def test_every_device_file_gives_its_estimator_and_a_pose(ros, device):  # noqa: F811
+    """The node reads actuator.stiffness, the encoder quantum and kinetics.* from each
+    device file, and estimates the home pose from the home lengths."""
+    path = REPO / 'config' / f'{device}.yaml'
+    cfg = load_device_config(path)
+    act = cfg['actuator']
+    kin = ros.device_node(KineticsNode, path)
+    test = ros.node('kinetics_test')
+    got = ros.collect(test, PoseWithCovarianceStamped, '/brace/pose_with_covariance')
+    pub = test.create_publisher(JointState, '/brace/joint_states', RELIABLE_10)
+    ros.wait_matched(pub)
+    ros.spin_until(lambda: kin._pose_cov_pub.get_subscription_count() >= 1, what='kinetics -> test')
+    model = kin.estimator.model
+    assert model.stiffness == act['stiffness'] and model.force_noise == cfg['kinetics']['load_cell_noise']
+    rotary = act.get('kind') == 'rotary'
+    quantum = (2 * math.pi / (act['encoder_counts_per_rev'] * act.get('gear_ratio', 1.0)) if rotary
+               else act['screw_lead'] / act['encoder_counts_per_rev'])
+    assert model.resolution == pytest.approx(quantum, rel=1e-12) and kin.estimator.rotary == rotary
+    mech = kin.mechanism
+    home = np.asarray(mech.home_pose, float)
+    pub.publish(joint_state(mech.actuator_names, position=mech.inverse(home),
+                            effort=[0.0] * mech.n_actuators))
+    ros.spin_until(lambda: got, what='pose with covariance')
+    np.testing.assert_allclose(kin.estimate.pose, home, atol=1e-9)
+    cov = np.asarray(got[0].pose.covariance).reshape(6, 6)
+    assert np.all(np.isfinite(cov)) and np.all(np.diag(cov) > 0.0)
+
+
+# ----------------------------------------------------------------------------- message covariance
+
+def test_covariance_placement_for_xy_and_path_poses():
+    cov2 = np.array([[4.0, 1.0], [1.0, 9.0]])
+    out = pose_covariance_6x6([0.1, 0.2], cov2, kind='xy', unobserved_variance=1e6)
+    np.testing.assert_array_equal(out[:2, :2], cov2)
+    np.testing.assert_array_equal(np.diag(out)[2:], [1e6] * 4)
+    out = pose_covariance_6x6([0.3], np.array([[2.5]]), kind='path')
+    assert out[0, 0] == 2.5 and np.count_nonzero(out - np.diag(np.diag(out))) == 0
+    with pytest.raises(ValueError, match='covariance'):
+        pose_covariance_6x6([0.1, 0.2, 0.3], cov2, kind='planar')
+    with pytest.raises(ValueError, match='symmetric'):
+        pose_covariance_6x6([0.1, 0.2], np.array([[1.0, 0.5], [0.0, 1.0]]), kind='xy')
+
+
+def test_spherical_covariance_is_about_the_base_frame_axes():
+    """The shoulder's motion angles -> rotations about the fixed axes: G from the model's
+    rotation matrices (scipy's rotation vector of R(p + h e_i) R(p)^T), independent of
+    the quaternion path in msgs."""
+    mech = load_mechanism(REPO / 'config' / 'shoulder.yaml')
+    pose = np.array([0.3, -0.2, 0.4])
+    cov = np.diag([1e-6, 4e-6, 9e-6]) + 1e-7
+    h = 1e-6
+    g = np.column_stack([
+        (Rotation.from_matrix(mech.rotation_matrix(pose + h * e) @ mech.rotation_matrix(pose).T).as_rotvec()
+         - Rotation.from_matrix(mech.rotation_matrix(pose - h * e) @ mech.rotation_matrix(pose).T).as_rotvec())
+        / (2 * h) for e in np.eye(3)])
+    out = pose_covariance_6x6(pose, cov, mechanism=mech)
+    np.testing.assert_allclose(out[3:, 3:], g @ cov @ g.T, rtol=1e-6)
+    np.testing.assert_array_equal(np.diag(out)[:3], [1e6] * 3)

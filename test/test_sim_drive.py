@@ -3,12 +3,16 @@
 Virtual bus, a unique channel per test, no fixed sleeps: SYNCs are sent one at a time by
 the test (the simulated time step is 1006h, 2 ms by default) and every wait is on a
 condition with a timeout. Oracles: CiA 301/402 and docs/can.md, not the simulator.
+
+The CSP servo model (last section) is driven frame by frame without a bus
+(:class:`drive_frames.FrameMaster`); its oracles are the closed-form responses of the
+position loop docs/can.md specifies (first-order lag, braking curve), derived in each
+test's docstring.
 """
 from __future__ import annotations
 
-import copy
-
 import itertools
+import math
 import os
 import struct
 import threading
@@ -19,9 +23,12 @@ from pathlib import Path
 import can
 import canopen
 import pytest
+import yaml
 
-from brace_control.config import DeviceConfig, load_device_config
+from brace_control.can.pdo import pdo_mapping_writes
 from brace_control.sim import SimulatedBrace
+from brace_control.sim.drive import DriveLimits, SimulatedDrive
+from drive_frames import FrameMaster
 
 ROOT = Path(__file__).resolve().parent.parent
 CFG = ROOT / 'config' / 'lumbar_brace.yaml'
@@ -81,11 +88,7 @@ class Rig:
         self.net.connect(interface='virtual', channel=self.channel)
         self.rec = Recorder()
         self.net.notifier.add_listener(self.rec)
-        # the drive exactly as the YAML's actuator rates it: these tests check the drive's
-        # own acceleration limit (the simulator's default motors are 10x faster)
-        params = copy.deepcopy(dict(load_device_config(CFG)))
-        params['sim']['drive_acceleration_factor'] = 1.0
-        self.sim = SimulatedBrace(DeviceConfig(params, CFG.resolve()), channel=self.channel)
+        self.sim = SimulatedBrace(CFG, channel=self.channel)
         self.nodes: dict[int, canopen.BaseNode402] = {}
 
     def node(self, node_id: int) -> canopen.BaseNode402:
@@ -293,7 +296,7 @@ def test_csp_tracking_respects_max_velocity_and_acceleration(rig: Rig) -> None:
     target = pos0 + round(0.02 * CPM)
     rig.rpdo1(1, 0x0F, target)
     positions = []
-    for _ in range(250):
+    for _ in range(300):
         since = rig.rec.mark()
         rig.sync(1, tpdo_from=(1,))
         positions.append(rig.tpdo1(1, since)[1])
@@ -493,3 +496,231 @@ def test_encoder_freeze_jump_load_cell_saturation_and_stall(rig: Rig) -> None:
     rig.rpdo1(1, 0x80, here)
     rig.sync(2, tpdo_from=(1,))
     assert rig.tpdo1(1)[0] & 0x4F == 0x40
+
+
+# ---------------------------------------------------------------- CSP servo model (frame by frame)
+
+T_SYNC = 0.002                  # SYNC period = 1006h = 60C2h (2 x 10^-3 s), the EDS defaults
+L0 = 0.390                      # the actuator's length at power-up (m)
+
+
+def yaml_params() -> dict:
+    return yaml.safe_load(CFG.read_text())['/**']['ros__parameters']
+
+
+P = yaml_params()
+V_MAX = float(P['actuator']['max_velocity'])            # 0.065 m/s
+A_MAX = float(P['actuator']['max_acceleration'])        # 0.5 m/s^2
+KP = 2 * math.pi * float(P['sim']['drive_bandwidth_hz'])   # 1/s
+A_BRAKE = 0.9 * A_MAX                                   # braking curve (docs/can.md)
+E_LIN = A_BRAKE / KP ** 2                               # m, end of the linear range
+
+
+def csp_drive() -> tuple[FrameMaster, SimulatedDrive, int]:
+    """One drive rated as the YAML's actuator, mapped as docs/can.md, homed at L0, in CSP."""
+    limits = DriveLimits(counts_per_m=CPM, max_velocity=V_MAX, max_acceleration=A_MAX,
+                         stroke_min=float(P['mechanism']['stroke_min']),
+                         stroke_max=float(P['mechanism']['stroke_max']))
+    drive = SimulatedDrive(1, EDS, limits=limits, initial_length_m=L0,
+                           bandwidth_hz=float(P['sim']['drive_bandwidth_hz']))
+    fm = FrameMaster([drive])
+    mapping = lambda nid: [(w.index, w.subindex, w.fmt, w.value) for w in pdo_mapping_writes(nid)]
+    pos0 = fm.enable_csp([round(L0 * CPM)], configure=mapping)[0]
+    return fm, drive, pos0
+
+
+def ramp(t: float, v: float, a: float) -> tuple[float, float]:
+    """A ramp at ``v`` (m/s) reached at constant acceleration ``a``: position (m) and velocity
+    (m/s) at ``t`` from its start (0 before)."""
+    if t <= 0.0:
+        return 0.0, 0.0
+    if t < v / a:
+        return 0.5 * a * t * t, a * t
+    return v * t - v * v / (2.0 * a), v
+
+
+def run_ramp(v: float, a: float, duration: float, *, feed_forward: bool, ahead: bool,
+             stop_at: float = math.inf) -> list[tuple[float, int, float, float]]:
+    """Feed one CSP drive the ramp ``p(t)`` (held from ``stop_at`` on) SYNC by SYNC.
+
+    Before the SYNC at ``t_k`` the target is ``p(t_k + T)`` (``ahead``, as the master does)
+    or ``p(t_k)``; with ``feed_forward`` RPDO2 carries ``p'(...)`` in counts/s.
+
+    :returns: per SYNC ``(t_k, 6064h - start (counts), p(t_k) (counts), velocity m/s)``.
+    """
+    fm, drive, pos0 = csp_drive()
+    t0 = fm.t + T_SYNC            # the ramp starts one SYNC after enabling: p(t <= 0) = 0
+
+    def p(t: float) -> tuple[float, float]:
+        if t > stop_at:
+            return ramp(stop_at, v, a)[0], 0.0
+        return ramp(t, v, a)
+
+    out = []
+    for _ in range(round(duration / T_SYNC)):
+        t_sync = fm.t + T_SYNC - t0
+        pk, vk = p(t_sync + (T_SYNC if ahead else 0.0))
+        fm.rpdo1(1, 0x0F, pos0 + round(pk * CPM))
+        if feed_forward:
+            fm.rpdo2(1, round(vk * CPM))
+        fm.sync(T_SYNC)
+        sw, pos, _ = fm.tpdo1(1)
+        assert sw & 0x6F == 0x27 and not sw & 0x2000, f'left OPERATION ENABLED: sw={sw:#06x}'
+        out.append((t_sync, pos - pos0, p(t_sync)[0] * CPM, drive.velocity_mps))
+    return out
+
+
+def test_csp_without_feed_forward_lags_by_the_first_order_delay_and_never_stops() -> None:
+    """A ramp of targets without 60B1h: lag = v (T + 1/Kp), a smooth motion.
+
+    Derivation. The targets ``p_k = p(t_k)``, ``p(t) = v t`` (constant phase), are sent
+    before SYNC ``k``; the drive latches ``p_k`` at SYNC ``k`` and its reference runs
+    linearly from ``p_{k-1}`` to ``p_k`` over ``[t_k, t_k + T]`` (``T`` = 60C2h = the SYNC
+    period): ``r(t) = p_{k-1} + v (t - t_k) = v (t - T)``, the target delayed by one period.
+    Without feed-forward the loop is ``x' = Kp (r - x)``; substituting ``x = v (t - T) - c``
+    gives ``v = Kp c``: the particular solution lags ``r`` by ``c = v / Kp``, and the rest
+    decays as ``exp(-Kp t)``. So ``p(t) - x(t) -> v (T + 1/Kp)``. (Explicit Euler with
+    ``x_{n+1} - x_n = h Kp e = v h`` has the same steady lag.) This holds while the loop
+    error ``v / Kp`` stays in the linear range ``e_lin = 0.9 a_max / Kp^2``, i.e.
+    ``v < 0.9 a_max / Kp`` = 2.4 mm/s at 30 Hz and 0.5 m/s^2: at 2 mm/s the lag is
+    4.0 + 10.6 = 14.6 um = 119.7 counts; the encoder quantum adds +-1 count.
+
+    Smoothness: the reference slope only rises (2 mm/s reached at 0.02 m/s^2), and a
+    first-order loop's velocity ``v_{n+1} = v_n + Kp h (r' - v_n)`` (``Kp h < 1``) then
+    only rises too; the feedback on a quantised position can lower it by at most
+    ``Kp x 1 count`` when the reading steps. No stop-and-go: every SYNC moves ``v T``.
+    """
+    v, a = 0.002, 0.02
+    assert v / KP < E_LIN                                   # the linear regime (see above)
+    rows = run_ramp(v, a, 0.5, feed_forward=False, ahead=False)
+    lag = v * (T_SYNC + 1.0 / KP) * CPM
+    settled = [r for r in rows if r[0] > v / a + 8.0 / KP]  # transient exp(-8) of the lag
+    assert len(settled) > 100
+    for t, pos, p, _ in settled:
+        assert abs((p - pos) - lag) <= 1.5, f't={t:.3f}: lag {p - pos:.1f} counts, expected {lag:.1f}'
+    steps = [b[1] - a_[1] for a_, b in zip(settled, settled[1:])]
+    assert min(steps) >= v * T_SYNC * CPM - 2 and max(steps) <= v * T_SYNC * CPM + 2
+    vel = [r[3] for r in rows]
+    assert all(later >= earlier - KP / CPM - 1e-12 for earlier, later in zip(vel, vel[1:]))
+    assert all(r[3] > 0.0 for r in rows if r[0] > 2 * T_SYNC)   # moving once targets move
+
+
+def test_csp_with_velocity_feed_forward_tracks_a_ramp_without_lag() -> None:
+    """The same kind of ramp at 30 mm/s with 60B1h = p' and targets one period ahead.
+
+    Before SYNC ``k`` the master sends ``p(t_k + T)`` and ``p'(t_k + T)``; latched at SYNC
+    ``k`` the reference over ``[t_k, t_k + T]`` is ``p(t_k) + v (t - t_k) = p(t)`` (exact
+    for a ramp) and the feed-forward ``v_ff = v``. The loop ``x' = v_ff + Kp (r - x)`` then
+    gives ``(r - x)' = -Kp (r - x)``: the lag decays to zero, up to the encoder's
+    quantum (+-1 count). Without the feed-forward the same ramp would lag by the braking
+    curve of the next test (1 mm); with it, by nothing.
+    """
+    v, a = 0.030, 0.25
+    rows = run_ramp(v, a, 0.5, feed_forward=True, ahead=True)
+    settled = [r for r in rows if r[0] > v / a + 8.0 / KP]
+    assert len(settled) > 100
+    assert max(abs(p - pos) for _, pos, p, _ in settled) <= 2      # 0.24 um
+    assert max(abs(p - pos) for _, pos, p, _ in rows) <= 8         # 1 um, also while accelerating
+    assert abs(settled[-1][3] - v) <= KP / CPM
+
+
+def test_csp_large_lag_follows_the_braking_curve_and_stops_without_overshoot() -> None:
+    """Beyond the linear range the feedback is the braking curve: no overshoot at a stop.
+
+    docs/can.md: for ``|e| > e_lin`` the feedback speed is ``sqrt(2 a_b (|e| - e_lin/2))``
+    with ``a_b = 0.9 a_max``. A ramp at ``v`` without feed-forward settles where that
+    speed equals ``v``: ``e = v^2 / (2 a_b) + e_lin / 2``, plus the period of delay of the
+    previous test: at 30 mm/s, 1000 + 6.3 + 60 um. When the targets stop, the drive brakes
+    along the curve at ``a_b < a_max`` and arrives at the last target without passing it
+    (a pure P loop with the motor's acceleration limit would overshoot by millimetres).
+    """
+    v, a = 0.030, 0.25
+    stop_at = 0.8                 # time constant near the curve: v / a_b = 67 ms
+    rows = run_ramp(v, a, 1.2, feed_forward=False, ahead=False, stop_at=stop_at)
+    lag = (v * v / (2 * A_BRAKE) + E_LIN / 2 + v * T_SYNC) * CPM
+    before = [r for r in rows if stop_at - 0.1 < r[0] < stop_at]
+    assert all(abs((p - pos) - lag) <= 5 for _, pos, p, _ in before), \
+        [round(p - pos) for _, pos, p, _ in before[:3]] + [round(lag)]
+    final = ramp(stop_at, v, a)[0] * CPM
+    positions = [pos for _, pos, _, _ in rows]
+    assert max(positions) <= final + 1                       # never beyond the last target
+    assert abs(positions[-1] - final) <= 1                   # and there
+    vel = [r[3] for r in rows if r[0] > 0.01]
+    assert min(vel) >= 0.0                                    # no reversal
+
+
+def test_csp_speed_and_acceleration_stay_within_the_actuator_limits() -> None:
+    """A demand faster than the actuator (100 mm/s reached at 2 m/s^2, with feed-forward):
+    the motor follows at most ``max_velocity`` and ``max_acceleration`` of the YAML, and
+    reaches them (a wide following-error window keeps it enabled)."""
+    fm, drive, pos0 = csp_drive()
+    fm.sdo_write(1, 0x6065, 0, 'I', round(0.05 * CPM))
+    vel = [0.0]
+    t0 = fm.t
+    for _ in range(150):
+        t_next = fm.t + 2 * T_SYNC - t0
+        p, v = ramp(t_next, 0.1, 2.0)
+        fm.rpdo1(1, 0x0F, pos0 + round(p * CPM))
+        fm.rpdo2(1, round(v * CPM))
+        fm.sync(T_SYNC)
+        vel.append(drive.velocity_mps)
+    assert max(abs(x) for x in vel) <= V_MAX + 1e-12
+    assert max(vel) == pytest.approx(V_MAX)
+    acc = [(b - a) / T_SYNC for a, b in zip(vel, vel[1:])]
+    assert max(abs(x) for x in acc) <= A_MAX * (1 + 1e-9)
+    assert max(acc) == pytest.approx(A_MAX)
+
+
+def test_position_demand_interpolates_over_60c2h_and_holds_after_a_late_sync() -> None:
+    """6062h (position demand) at SYNC instants: CiA 402 CSP linear interpolation from the
+    previous target to the new one over 60C2h; a late SYNC finds it at the new target."""
+    fm, drive, pos0 = csp_drive()
+    fm.sdo_write(1, 0x6065, 0, 'I', round(0.05 * CPM))
+    fm.sdo_write(1, 0x60C2, 1, 'B', 4)                       # 4 x 10^-3 s: two SYNC periods
+    fm.rpdo1(1, 0x0F, pos0 + 1000)
+    fm.sync(T_SYNC)                                          # latched; segment starts here
+    assert drive.read_od(0x6062) == pos0
+    fm.sync(T_SYNC)
+    assert drive.read_od(0x6062) == pytest.approx(pos0 + 500, abs=1)   # half-way at 2 of 4 ms
+    fm.sync(T_SYNC)
+    assert drive.read_od(0x6062) == pos0 + 1000
+    fm.rpdo1(1, 0x0F, pos0 + 3000)
+    fm.sync(T_SYNC)
+    fm.sync(4 * T_SYNC)                                      # a late SYNC, 8 ms after
+    assert drive.read_od(0x6062) == pos0 + 3000
+
+
+def test_rpdo2_is_decoded_by_its_mapping_and_acts_at_sync() -> None:
+    """RPDO2 (0x300 + id) carries 60B1h by the mapping of docs/can.md; the value latches at
+    the next SYNC (CiA 301 synchronous RPDO). Re-mapped to 607Ah it sets the target."""
+    fm, drive, pos0 = csp_drive()
+    assert drive.read_od(0x1601, 1) == 0x60B10020 and drive.read_od(0x1601, 0) == 1
+    assert drive.read_od(0x1401, 1) == 0x301 and drive.read_od(0x1401, 2) == 1
+    fm.rpdo2(1, 12345)
+    assert drive.read_od(0x60B1) == 0
+    fm.sync(T_SYNC)
+    assert drive.read_od(0x60B1) == 12345
+    fm.rpdo2(1, 0)
+    fm.sync(T_SYNC)
+    for index, sub, fmt, value in ((0x1401, 1, 'I', 0x80000301), (0x1601, 0, 'B', 0),
+                                   (0x1601, 1, 'I', 0x607A0020), (0x1601, 0, 'B', 1),
+                                   (0x1401, 1, 'I', 0x301)):
+        fm.sdo_write(1, index, sub, fmt, value)
+    fm.rpdo2(1, pos0 + 77)
+    fm.sync(T_SYNC)
+    assert drive.read_od(0x607A) == pos0 + 77 and drive.read_od(0x60B1) == 0
+
+
+def test_entering_operation_enabled_takes_the_actual_position_not_a_stale_target() -> None:
+    """607Ah and 60B1h left far from the actual position while disabled: enabling neither
+    jumps nor drifts (the reference starts at the actual position, zero feed-forward)."""
+    fm, drive, pos0 = csp_drive()
+    fm.sdo_write(1, 0x6040, 0, 'H', 0x07)                    # SWITCHED ON (transition 5)
+    fm.sdo_write(1, 0x607A, 0, 'i', pos0 + round(0.01 * CPM))
+    fm.sdo_write(1, 0x60B1, 0, 'i', round(0.02 * CPM))
+    fm.sdo_write(1, 0x6040, 0, 'H', 0x0F)                    # OPERATION ENABLED (4)
+    assert drive.read_od(0x607A) == pos0 and drive.read_od(0x60B1) == 0
+    for _ in range(50):
+        fm.sync(T_SYNC)
+    sw, pos, _ = fm.tpdo1(1)
+    assert sw & 0x6F == 0x27 and pos == pos0 and drive.velocity_mps == 0.0

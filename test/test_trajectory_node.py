@@ -1,7 +1,10 @@
-"""trajectory_node with real rclpy and DDS: goals, paths, rejections, cancel, status.
+"""trajectory_node with real rclpy and DDS: planned motions out, honest goal outcomes.
 
-The lumbar brace's configured home (0, 0.39, 0) is singular for its collinear 3-RPR
-(see test_trajectory.py), so the node runs with ``mechanism.home_pose`` tilted to 0.1 rad.
+The node's peers are played by the test (:class:`FakeStack`): the driver's latched state,
+its execution events, and the pose estimate. Oracles: the minimum-jerk motion of thesis 002
+eq. (2.2) and the paper's eq. 3 for actuator lengths (rpr_oracles), not the node's code.
+
+The lumbar brace's home is tilted to 0.1 rad here (clear of the theta = 0 singularity).
 """
 from __future__ import annotations
 
@@ -9,16 +12,18 @@ import math
 
 import numpy as np
 import pytest
-from scipy.interpolate import CubicSpline
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from std_srvs.srv import Trigger
+from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from brace_control.nodes.msgs import pose_msg, sec_to_stamp, stamp_to_sec
-from brace_control.nodes.trajectory_node import (GOAL_TOPIC, PATH_TOPIC, STATUS_TOPIC,
-                                                 TrajectoryNode)
-from ros_helpers import RELIABLE_10, ros  # noqa: F401
+from brace_control.nodes import topics
+from brace_control.nodes.msgs import (pose_knots_from_msg, pose_msg, sec_to_stamp, stamp_to_ns,
+                                      status_msg, status_values)
+from brace_control.nodes.trajectory_node import PLAN_LOOKAHEAD_S, TrajectoryNode
+from brace_control.trajectory import KnotTrajectory
+from ros_helpers import ros  # noqa: F401
 from rpr_oracles import lumbar_eq3
 
 pytestmark = pytest.mark.ros
@@ -26,176 +31,284 @@ pytestmark = pytest.mark.ros
 HOME = np.array([0.0, 0.39, 0.1])
 OVERRIDES = {'mechanism.home_pose': '[0.0, 0.39, 0.1]'}
 FRAME = 'brace_base'
+DEEP = topics.STATUS_QOS
 
 
-def start(ros, **overrides):
+class FakeStack:
+    """The driver and the estimator as the node sees them, driven by the test."""
+
+    def __init__(self, ros, node):
+        self.ros = ros
+        self.client = ros.node('trajectory_test_client')
+        c = self.client
+        self.trajectories: list[MultiDOFJointTrajectory] = []
+        self.status: list[DiagnosticStatus] = []
+        c.create_subscription(MultiDOFJointTrajectory, topics.POSE_TRAJECTORY,
+                              self.trajectories.append, DEEP)
+        c.create_subscription(DiagnosticStatus, topics.GOAL_STATUS, self.status.append, DEEP)
+        self.goal_pub = c.create_publisher(PoseStamped, topics.POSE_GOAL, topics.GOAL_QOS)
+        self.path_pub = c.create_publisher(Path, topics.POSE_PATH, topics.GOAL_QOS)
+        self.state_pub = c.create_publisher(DiagnosticStatus, topics.DRIVER_STATE, topics.LATCHED_QOS)
+        self.exec_pub = c.create_publisher(DiagnosticStatus, topics.EXECUTION_STATUS, topics.STATUS_QOS)
+        self.pose_pub = c.create_publisher(PoseStamped, topics.POSE, topics.STATE_QOS)
+        for pub in (self.goal_pub, self.path_pub, self.state_pub, self.exec_pub, self.pose_pub):
+            ros.wait_matched(pub)
+        ros.spin_until(lambda: node.count_subscribers(topics.POSE_TRAJECTORY) >= 1
+                       and node.count_subscribers(topics.GOAL_STATUS) >= 1, what='test subscriptions')
+        self.node = node
+
+    def driver(self, enabled: bool, message: str, pose=HOME, execution='hold'):
+        self.state_pub.publish(status_msg('can_driver_node/state', message, state=message,
+                                          enabled=str(enabled).lower(), execution=execution,
+                                          command=list(lumbar_eq3(pose))))
+        self.ros.spin_until(lambda: self.node.runner.driver_reason == message, what='driver state')
+
+    def event(self, traj: MultiDOFJointTrajectory, kind: str, reason: str = '', pose=None):
+        tag = stamp_to_ns(traj.header.stamp)
+        self.exec_pub.publish(status_msg(f'can_driver_node/trajectory/{tag}', kind, stamp=tag,
+                                         kind=kind, reason=reason,
+                                         positions=[] if pose is None else list(lumbar_eq3(pose))))
+
+    def estimate(self, pose):
+        self.pose_pub.publish(pose_msg(pose, frame_id=FRAME,
+                                       stamp=self.client.get_clock().now().to_msg()))
+
+    def states(self, goal_id=None):
+        return [(value(s, 'goal_id'), s.message) for s in self.status
+                if goal_id is None or value(s, 'goal_id') == goal_id]
+
+    def wait_state(self, goal_id, state, timeout=5.0):
+        self.ros.spin_until(lambda: (goal_id, state) in self.states(), timeout=timeout,
+                            what=f'goal {goal_id} {state}')
+
+    def knots(self, traj) -> KnotTrajectory:
+        _, t, P, V, A = pose_knots_from_msg(traj, frame_id=FRAME)
+        return KnotTrajectory(t, P, V, A)
+
+
+def start(ros, enabled=True, **overrides):
     node = ros.device_node(TrajectoryNode, **(OVERRIDES | overrides))
-    client = ros.node('trajectory_test_client')
-    setpoints = ros.collect(client, PoseStamped, '/brace/pose_setpoint')
-    status = ros.collect(client, DiagnosticStatus, STATUS_TOPIC,
-                         qos=type(RELIABLE_10)(depth=50, reliability=RELIABLE_10.reliability))
-    goal_pub = client.create_publisher(PoseStamped, GOAL_TOPIC, RELIABLE_10)
-    path_pub = client.create_publisher(Path, PATH_TOPIC, RELIABLE_10)
-    ros.wait_matched(goal_pub)
-    ros.wait_matched(path_pub)
-    ros.spin_until(lambda: node.count_subscribers('/brace/pose_setpoint') >= 1
-                   and node.count_subscribers(STATUS_TOPIC) >= 1, what='test subscriptions')
-    return node, client, setpoints, status, goal_pub, path_pub
-
-
-def states(status, goal_id=None):
-    return [(s.values[0].value, s.message) for s in status
-            if goal_id is None or s.values[0].value == goal_id]
+    stack = FakeStack(ros, node)
+    if enabled:
+        stack.driver(True, 'enabled')
+    return node, stack
 
 
 def value(msg: DiagnosticStatus, key: str) -> str:
-    return {kv.key: kv.value for kv in msg.values}[key]
+    return status_values(msg)[key]
 
 
-def pose_of(msg: PoseStamped) -> np.ndarray:
-    q = msg.pose.orientation
-    return np.array([msg.pose.position.x, msg.pose.position.y, 2 * math.atan2(q.z, q.w)])
+def eq_2_2(x0, xf, tf, t):
+    """Thesis 002 eq. (2.2): the minimum-jerk position at t."""
+    tau = np.clip(t / tf, 0.0, 1.0)[:, None]
+    return x0 + (xf - x0) * (10 * tau ** 3 - 15 * tau ** 4 + 6 * tau ** 5)
 
 
-def test_goal_streams_setpoints_at_the_rate_and_ends_at_the_goal(ros):
-    node, _, setpoints, status, goal_pub, _ = start(ros)
+def test_a_goal_is_published_once_whole_and_succeeds_only_at_the_goal(ros):
+    node, stack = start(ros)
     goal = HOME + [0.004, 0.0, 0.02]
-    goal_pub.publish(pose_msg(goal, frame_id=FRAME))
-    ros.spin_until(lambda: ('1', 'succeeded') in states(status), timeout=10.0, what='goal succeeded')
-    assert states(status) == [('1', 'accepted'), ('1', 'succeeded')]
-    ros.spin_until(lambda: len(setpoints) >= 60, what='setpoints')
-    final = pose_of(setpoints[-1])
-    np.testing.assert_allclose(final, goal, atol=1e-9)
-    stamps = np.array([stamp_to_sec(m.header.stamp) for m in setpoints])
-    period = np.median(np.diff(stamps))
-    assert period == pytest.approx(1.0 / 200.0, rel=0.1)
-    # starts from home (no measured pose, no earlier setpoint), no jump at the start
-    assert np.linalg.norm(pose_of(setpoints[0]) - HOME) < 1e-3
-    assert all(m.header.frame_id == FRAME for m in setpoints)
-    accepted = status[0]
-    assert value(accepted, 'source') == 'pose_goal' and float(value(accepted, 'duration')) > 0
+    sent = ros.nodes[0].get_clock().now()
+    stack.goal_pub.publish(pose_msg(goal, frame_id=FRAME, stamp=sent.to_msg()))
+    stack.wait_state('1', 'accepted')
+    ros.spin_until(lambda: len(stack.trajectories) == 1, what='the planned motion')
+    traj = stack.trajectories[0]
+    # when it takes over: the lookahead after the goal came in
+    start_s = (stamp_to_ns(traj.header.stamp) - sent.nanoseconds) * 1e-9
+    assert PLAN_LOOKAHEAD_S - 0.01 < start_s < PLAN_LOOKAHEAD_S + 0.5
+    assert traj.header.frame_id == FRAME and list(traj.joint_names) == ['brace_platform']
+    # the knots rebuild the minimum-jerk motion from the hold (IK(HOME), the driver's
+    # command) to the goal, eq. (2.2), with the duration the status reports
+    knots = stack.knots(traj)
+    assert knots.duration == pytest.approx(float(value(stack.status[0], 'duration')), abs=1e-4)
+    duration = knots.duration
+    t = np.linspace(0.0, duration, 500)
+    np.testing.assert_allclose(knots.sample_many(t)[0], eq_2_2(HOME, goal, duration, t), atol=1e-7)
+    np.testing.assert_allclose(knots.velocities[-1], 0.0, atol=0.0)     # ends exactly at rest
+    # no success without the driver and the estimate: finished, but the ring is 3 mm off
+    stack.event(traj, 'started')
+    stack.event(traj, 'finished', pose=goal)
+    ros.spin_for(0.1)
+    stack.estimate(goal + [0.003, 0.0, 0.0])
+    ros.spin_for(0.2)
+    assert stack.states('1') == [('1', 'accepted')]
+    stack.estimate(goal + [0.0008, 0.0, 0.001])
+    stack.wait_state('1', 'succeeded')
+    assert stack.states() == [('1', 'accepted'), ('1', 'succeeded')]
+    done = stack.status[-1]
+    assert value(done, 'stamp') == str(sent.nanoseconds) and value(done, 'source') == 'pose_goal'
+    assert len(stack.trajectories) == 1
+
+
+def test_goals_are_rejected_while_the_drives_are_not_enabled(ros):
+    node, stack = start(ros, enabled=False)
+    stack.goal_pub.publish(pose_msg(HOME + [0.0, 0.005, 0.0], frame_id=FRAME))
+    stack.wait_state('1', 'rejected')
+    assert 'not enabled' in value(stack.status[0], 'reason')
+    stack.driver(False, 'protective stop: a2: force limit: load-cell force 254 N')
+    stack.goal_pub.publish(pose_msg(HOME + [0.0, 0.005, 0.0], frame_id=FRAME))
+    stack.wait_state('2', 'rejected')
+    assert 'force limit' in value(stack.status[-1], 'reason')
+    ros.spin_for(0.2)
+    assert stack.trajectories == []
+
+
+def test_a_goal_with_no_ik_node_listening_is_rejected_not_lost(ros):
+    """Nothing subscribes to /brace/pose_trajectory (no ik node): the plan would be lost on
+    a topic that keeps no history, and the goal would end in "the driver did not start";
+    it is rejected at once, naming the topic."""
+    node = ros.device_node(TrajectoryNode, **OVERRIDES)
+    client = ros.node('trajectory_alone_client')
+    status: list[DiagnosticStatus] = []
+    client.create_subscription(DiagnosticStatus, topics.GOAL_STATUS, status.append, DEEP)
+    goal_pub = client.create_publisher(PoseStamped, topics.POSE_GOAL, topics.GOAL_QOS)
+    state_pub = client.create_publisher(DiagnosticStatus, topics.DRIVER_STATE, topics.LATCHED_QOS)
+    for pub in (goal_pub, state_pub):
+        ros.wait_matched(pub)
+    state_pub.publish(status_msg('can_driver_node/state', 'enabled', state='enabled', enabled='true',
+                                 execution='hold', command=list(lumbar_eq3(HOME))))
+    ros.spin_until(lambda: node.runner.driver_enabled, what='driver state')
+    goal_pub.publish(pose_msg(HOME + [0.0, 0.005, 0.0], frame_id=FRAME))
+    ros.spin_until(lambda: any(m.message == 'rejected' for m in status), what='the rejection')
+    reason = value(next(m for m in status if m.message == 'rejected'), 'reason')
+    assert topics.POSE_TRAJECTORY in reason and 'ik_node' in reason
 
 
 def test_unreachable_goal_is_rejected_with_its_reason_and_nothing_moves(ros):
-    node, _, setpoints, status, goal_pub, _ = start(ros)
-    goal_pub.publish(pose_msg(HOME + [0.0, 0.2, 0.0], frame_id=FRAME))
-    ros.spin_until(lambda: len(status) >= 1, what='a status')
-    assert states(status) == [('1', 'rejected')]
-    assert status[0].level == DiagnosticStatus.WARN
-    assert 'actuator a' in value(status[0], 'reason')
+    node, stack = start(ros)
+    stack.goal_pub.publish(pose_msg(HOME + [0.0, 0.2, 0.0], frame_id=FRAME))
+    stack.wait_state('1', 'rejected')
+    assert stack.status[0].level == DiagnosticStatus.WARN
+    assert 'actuator a' in value(stack.status[0], 'reason')
     ros.spin_for(0.2)
-    assert setpoints == []
+    assert stack.trajectories == []
 
 
 def test_bad_input_is_rejected_with_a_message(ros):
-    node, _, setpoints, status, goal_pub, path_pub = start(ros)
-    goal_pub.publish(pose_msg([math.nan, 0.39, 0.1], frame_id=FRAME))
-    goal_pub.publish(pose_msg(HOME, frame_id='world'))
+    node, stack = start(ros, **{'trajectory.max_path_poses': 3})
+    stack.goal_pub.publish(pose_msg([math.nan, 0.39, 0.1], frame_id=FRAME))
+    stack.goal_pub.publish(pose_msg(HOME, frame_id='world'))
     empty = Path()
     empty.header.frame_id = FRAME
-    path_pub.publish(empty)
-    stamps = (1.0, 1.0)
+    stack.path_pub.publish(empty)
     path = Path()
     path.header.frame_id = FRAME
-    for t, pose in zip(stamps, (HOME + [0.002, 0, 0.01], HOME + [0.004, 0, 0.02])):
+    for t, pose in zip((1.0, 1.0), (HOME + [0.002, 0, 0.01], HOME + [0.004, 0, 0.02])):
         path.poses.append(pose_msg(pose, frame_id=FRAME, stamp=sec_to_stamp(t)))
-    path_pub.publish(path)
-    ros.spin_until(lambda: len(status) >= 4, what='four statuses')
-    assert sorted(value(s, 'goal_id') for s in status) == ['1', '2', '3', '4']
-    assert all(s.message == 'rejected' for s in status)
-    reasons = ' | '.join(value(s, 'reason') for s in status)   # topics are not ordered
-    for expected in ('not finite', "frame 'world'", 'empty path', 'non-increasing'):
+    stack.path_pub.publish(path)
+    big = Path()
+    big.header.frame_id = FRAME
+    big.poses = [pose_msg(HOME, frame_id=FRAME) for _ in range(4)]
+    stack.path_pub.publish(big)
+    ros.spin_until(lambda: len(stack.status) >= 5, what='five statuses')
+    assert sorted(value(s, 'goal_id') for s in stack.status) == ['1', '2', '3', '4', '5']
+    assert all(s.message == 'rejected' for s in stack.status)
+    reasons = ' | '.join(value(s, 'reason') for s in stack.status)
+    for expected in ('not finite', "frame 'world'", 'empty path', 'non-increasing',
+                     'more than trajectory.max_path_poses = 3'):
         assert expected in reasons
     ros.spin_for(0.1)
-    assert setpoints == []
+    assert stack.trajectories == []
 
 
 def test_path_passes_its_via_point_at_its_stamp(ros):
-    node, _, setpoints, status, _, path_pub = start(ros)
+    node, stack = start(ros)
     via, goal = HOME + [0.003, 0.002, 0.01], HOME + [0.005, 0.0, 0.02]
     path = Path()
     path.header.frame_id = FRAME                       # header stamp 0: relative times
     path.poses = [pose_msg(via, frame_id=FRAME, stamp=sec_to_stamp(0.3)),
                   pose_msg(goal, frame_id=FRAME, stamp=sec_to_stamp(0.6))]
-    path_pub.publish(path)
-    ros.spin_until(lambda: ('1', 'succeeded') in states(status), timeout=10.0, what='path done')
-    ps = np.array([pose_of(m) for m in setpoints])
-    t = np.array([stamp_to_sec(m.header.stamp) for m in setpoints])
-    # passes the via point. Each setpoint is the path sampled at its stamp, but a loaded
-    # machine can drop timer ticks, so the samples' polyline may cut the corner: rebuild
-    # the path from the samples by a cubic spline in the stamps (interpolation error
-    # ~ h^4 |p''''| < 1e-7 m here even with ticks dropped) and measure its distance.
-    keep = np.concatenate([[True], np.diff(t) > 0])
-    spline = CubicSpline(t[keep], ps[keep])
-    dense = spline(np.linspace(t[0], t[-1], 20000))
-    assert np.min(np.linalg.norm(dense - via, axis=1)) < 1e-5
-    np.testing.assert_allclose(ps[-1], goal, atol=1e-9)
-    assert float(value(status[0], 'duration')) == pytest.approx(0.6)
+    stack.path_pub.publish(path)
+    ros.spin_until(lambda: len(stack.trajectories) == 1, what='the planned motion')
+    stack.wait_state('1', 'accepted')
+    knots = stack.knots(stack.trajectories[0])
+    assert knots.duration == pytest.approx(0.6)
+    np.testing.assert_allclose(knots.sample(0.3)[0], via, atol=1e-9)
+    np.testing.assert_allclose(knots.positions[-1], goal, atol=1e-12)
+    assert value(stack.status[0], 'source') == 'pose_path'
 
 
-def test_cancel_decelerates_smoothly_and_holds(ros):
-    node, client, setpoints, status, goal_pub, _ = start(ros, **{'trajectory.profile': 'scurve'})
-    goal = HOME + [0.03, 0.0, 0.08]
-    goal_pub.publish(pose_msg(goal, frame_id=FRAME))
-    ros.spin_until(lambda: len(setpoints) >= 80, what='moving')
-    cancel = client.create_client(Trigger, '/trajectory_node/cancel')
+def test_cancel_stops_the_running_motion_and_the_next_starts_where_it_stopped(ros):
+    node, stack = start(ros)
+    stack.goal_pub.publish(pose_msg(HOME + [0.0, 0.02, 0.05], frame_id=FRAME))
+    ros.spin_until(lambda: len(stack.trajectories) == 1, what='moving')
+    first = stack.trajectories[0]
+    stack.event(first, 'started')
+    cancel = stack.client.create_client(Trigger, '/trajectory_node/cancel')
     assert cancel.wait_for_service(timeout_sec=5.0)
     future = cancel.call_async(Trigger.Request())
     ros.spin_until(future.done, what='cancel response')
     assert future.result().success
-    ros.spin_until(lambda: ('1', 'cancelled') in states(status), what='cancelled status')
-    n_cancel = len(setpoints)
-    ros.spin_until(lambda: len(setpoints) >= n_cancel + 200, what='setpoints after cancel')
-    ps = np.array([pose_of(m) for m in setpoints])
-    steps = np.linalg.norm(np.diff(ps[:, :2], axis=0), axis=1)
-    t = np.array([stamp_to_sec(m.header.stamp) for m in setpoints])
-    dt = np.diff(t)
-    velocity = np.diff(ps[:, :2], axis=0) / dt[:, None]   # by the stamps (= sample instants)
-    speed = np.linalg.norm(velocity, axis=1)
-    # no jump in velocity across the cancel: the brake starts from the running state
-    # (a change of at most a few times the S-curve's acceleration limit over one step)
-    dv = np.linalg.norm(np.diff(velocity, axis=0), axis=1)
-    dt_mid = (dt[:-1] + dt[1:]) / 2.0                      # between the two mean velocities
-    amax = 0.1                                             # trajectory.max_acceleration x, y
-    accel = dv / dt_mid
-    assert accel[n_cancel - 3:].max() <= 4.0 * amax, (n_cancel, np.argmax(accel), accel.max())
-    # the brake carries the start acceleration over (jerk is finite): the speed may rise
-    # briefly, then falls to rest; it stays far below the actuators' 65 mm/s
-    assert speed[n_cancel:].max() <= 0.065
-    peak = n_cancel + int(np.argmax(speed[n_cancel:]))
-    assert np.all(np.diff(speed[peak:]) <= 1e-4)    # 0.3 % of the speed: stamp rounding
-    # at rest, holding, short of the goal
-    assert np.all(steps[-50:] < 1e-12)
-    assert np.linalg.norm(ps[-1, :2] - goal[:2]) > 1e-3
-    assert states(status) == [('1', 'accepted'), ('1', 'cancelled')]
+    stack.wait_state('1', 'cancelled')
+    # the stop: an empty trajectory naming the running one (the driver brakes along it)
+    ros.spin_until(lambda: len(stack.trajectories) == 2, what='the stop')
+    stop = stack.trajectories[1]
+    assert len(stop.points) == 0 and stop.header.stamp == first.header.stamp
+    # a goal sent while the brace is braking waits for the driver's report ...
+    stack.goal_pub.publish(pose_msg(HOME + [0.0, -0.01, 0.0], frame_id=FRAME))
+    ros.spin_for(0.3)
+    assert len(stack.trajectories) == 2
+    # ... then starts exactly where the driver says the motion stopped
+    where = stack.knots(first).sample(0.3)[0]
+    stack.event(first, 'stopped', 'cancel requested (empty trajectory)', pose=where)
+    ros.spin_until(lambda: len(stack.trajectories) == 3, what='the next motion')
+    np.testing.assert_allclose(stack.knots(stack.trajectories[2]).positions[0], where, atol=1e-9)
+    assert stack.states('1') == [('1', 'accepted'), ('1', 'cancelled')]
+
+
+def test_a_platform_that_does_not_follow_is_aborted_with_the_error(ros):
+    node, stack = start(ros, **{'safety.settle_time': 0.3})
+    goal = HOME + [0.01, 0.0, 0.0]
+    stack.goal_pub.publish(pose_msg(goal, frame_id=FRAME))
+    ros.spin_until(lambda: len(stack.trajectories) == 1, what='the planned motion')
+    stack.event(stack.trajectories[0], 'started')
+    stack.event(stack.trajectories[0], 'finished', pose=goal)
+    for _ in range(5):
+        ros.spin_for(0.05)
+        stack.estimate(HOME + [0.0003, 0.0, 0.0])        # the ring stayed where it was
+    stack.wait_state('1', 'aborted')
+    aborted = stack.status[-1]
+    assert aborted.level == DiagnosticStatus.ERROR
+    assert 'did not follow' in value(aborted, 'reason') and 'x off by 9.70 mm' in value(aborted, 'reason')
+
+
+def test_a_protective_stop_aborts_the_running_goal_with_the_drivers_reason(ros):
+    node, stack = start(ros)
+    stack.goal_pub.publish(pose_msg(HOME + [0.0, 0.02, 0.05], frame_id=FRAME))
+    ros.spin_until(lambda: len(stack.trajectories) == 1, what='moving')
+    stack.event(stack.trajectories[0], 'started')
+    stack.driver(False, 'protective stop: a1: following error')
+    stack.wait_state('1', 'aborted')
+    assert 'following error' in value(stack.status[-1], 'reason')
+    # the stop's own execution event does not report it a second time
+    stack.event(stack.trajectories[0], 'stopped', 'protective stop', pose=HOME)
+    ros.spin_for(0.2)
+    assert stack.states('1') == [('1', 'accepted'), ('1', 'aborted')]
+
+
+def test_a_goal_flood_coalesces_and_every_goal_gets_exactly_one_end(ros):
+    node, stack = start(ros)
+    n = 200
+    for i in range(n):                                 # as fast as rclpy publishes (> 1 kHz)
+        stack.goal_pub.publish(pose_msg(HOME + [0.0, 0.0001 * (i % 20), 0.0], frame_id=FRAME))
+    ros.spin_until(lambda: len({value(s, 'goal_id') for s in stack.status
+                                if s.message != 'accepted'}) >= n - 1
+                   and (str(n), 'accepted') in stack.states(), timeout=20.0,
+                   what='an end for every goal but the newest, which runs')
+    ids = [value(s, 'goal_id') for s in stack.status]
+    assert set(ids) == {str(i) for i in range(1, n + 1)}, sorted(
+        {str(i) for i in range(1, n + 1)} - set(ids), key=int)
+    for gid in {str(i) for i in range(1, n + 1)}:
+        events = stack.states(gid)
+        assert events[0][1] in ('accepted', 'rejected')           # accepted or rejected first
+        ends = [e for _, e in events if e != 'accepted']
+        assert len(ends) <= 1
+    superseded = [s for s in stack.status if 'superseded by goal' in value(s, 'reason')]
+    assert len(superseded) > n / 2                                # planned far fewer than sent
+    # the newest goal is the one that runs
+    assert stack.states(str(n))[-1] == (str(n), 'accepted')
 
 
 def test_platform_limits_of_the_wrong_length_fail_at_start_up(ros):
     from brace_control.config import ConfigError
     with pytest.raises(ConfigError, match='max_jerk needs 3 values'):
         ros.device_node(TrajectoryNode, **(OVERRIDES | {'trajectory.max_jerk': '[1.0, 1.0]'}))
-
-
-def test_first_goal_starts_from_a_fresh_measured_pose_and_tracking_error_aborts(ros):
-    from brace_control.nodes.trajectory_node import POSE_TOPIC
-    node, client, setpoints, status, goal_pub, _ = start(ros, **{'safety.tracking_latency': 0.1})
-    measured_pub = client.create_publisher(PoseStamped, POSE_TOPIC, RELIABLE_10)
-    ros.wait_matched(measured_pub)
-    measured = HOME + [0.002, 0.001, 0.01]
-    measured_pub.publish(pose_msg(measured, frame_id=FRAME))
-    ros.spin_until(lambda: node._measured is not None, what='measured pose received')
-    goal_pub.publish(pose_msg(HOME + [0.03, 0.0, 0.08], frame_id=FRAME))
-    ros.spin_until(lambda: len(setpoints) >= 1, what='first setpoint')
-    np.testing.assert_allclose(pose_of(setpoints[0]), measured, atol=1e-6)
-    # the brace does not follow (the measured pose stays put): beyond 5 mm of actuator
-    # length (paper eq. 3) from every setpoint of the last tracking_latency -> aborted
-    window = int(node.runner.tracking_latency * 200.0) + 10      # setpoints at 200 Hz, + margin
-    ros.spin_until(lambda: len(setpoints) > window and min(
-        np.abs(lumbar_eq3(pose_of(m)) - lumbar_eq3(measured)).max() for m in setpoints[-window:]) > 0.006,
-        timeout=10.0, what='setpoints 6 mm of actuator length away')
-    measured_pub.publish(pose_msg(measured, frame_id=FRAME))
-    ros.spin_until(lambda: ('1', 'aborted') in states(status), what='aborted status')
-    aborted = [s for s in status if s.message == 'aborted'][0]
-    assert aborted.level == DiagnosticStatus.ERROR
-    assert 'tracking error' in value(aborted, 'reason')
-    assert states(status) == [('1', 'accepted'), ('1', 'aborted')]

@@ -5,8 +5,12 @@
 >>> master = BraceMaster.from_device_config(load_device_config('lumbar_brace'), channel='t1')
 >>> master.boot(); master.home(); master.enable(); master.set_targets([0.39, 0.39, 0.39])
 
-* :mod:`.master`: :class:`BraceMaster` (boot, SDO configuration, PDO mapping, NMT, 402
-  state machine, homing, cyclic SYNC thread), :class:`MasterConfig`.
+* :mod:`.master`: :class:`BraceMaster`, made of :mod:`.state` (:class:`MasterConfig`,
+  states, snapshots), :mod:`.boot` (SDO configuration, PDO mapping, NMT, homing),
+  :mod:`.receive` (TPDOs, heartbeats, EMCY), :mod:`.cycle` (the SYNC thread),
+  :mod:`.monitors` (per-cycle supervision).
+* :mod:`.execution`: the commanded motion, one time base for all axes:
+  :class:`ActuatorTrajectory` (quintic Hermite), :class:`PathExecutor`.
 * :mod:`.units`: every SI <-> device-unit conversion.
 * :mod:`.cia402`: statusword / controlword / NMT / EMCY codes.
 * :mod:`.supervision`: fault kinds, latching, monitors, error-frame decoding.
@@ -17,8 +21,9 @@
 from .cia402 import Controlword, NmtState, OpMode, State402, Statusword, decode_state, emcy_description
 from .errors import (DriverError, DriverInitializationError, DriverOperationError,
                      DriverTimeoutError, FaultLatchedError)
-from .master import (BraceMaster, BusStatus, DriveStatus, Feedback, MasterConfig, MasterState,
-                     MasterStatus)
+from .execution import ActuatorTrajectory, ExecutionEvent, PathExecutor, TrajectoryInvalid
+from .master import BraceMaster
+from .state import BusStatus, DriveStatus, Feedback, MasterConfig, MasterState, MasterStatus
 from .supervision import Fault, FaultKind, Limits, Supervisor
 from .timing import PeriodStats, TimingReport
 from .units import AxisScaling, scaling_from_config
@@ -27,7 +32,8 @@ CiA402Master = BraceMaster
 """Alias: the master is a generic CiA 402 CSP master; the brace is its only user so far."""
 
 __all__ = [
-    'BraceMaster', 'CiA402Master', 'MasterConfig', 'MasterState', 'MasterStatus', 'DriveStatus',
+    'BraceMaster', 'CiA402Master', 'ActuatorTrajectory', 'ExecutionEvent', 'PathExecutor',
+    'TrajectoryInvalid', 'MasterConfig', 'MasterState', 'MasterStatus', 'DriveStatus',
     'BusStatus', 'Feedback', 'AxisScaling', 'scaling_from_config', 'State402', 'Statusword',
     'Controlword', 'NmtState', 'OpMode', 'decode_state', 'emcy_description', 'Fault', 'FaultKind',
     'Limits', 'Supervisor', 'PeriodStats', 'TimingReport', 'DriverError',

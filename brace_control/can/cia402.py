@@ -1,6 +1,8 @@
 """CiA 402 drive profile and CiA 301 codes: statusword 6041h, controlword 6040h, NMT, EMCY.
 
-Pure functions and enums, no bus: the master (:mod:`.master`) and the tests use them.
+Pure functions and enums, no bus. The one home of these codes: the master (:mod:`.master`)
+decodes with them and the simulated drives (:mod:`brace_control.sim.drive`) encode with
+them, so both sides of the bus share one table.
 """
 from __future__ import annotations
 
@@ -9,7 +11,8 @@ import enum
 __all__ = [
     'State402', 'Controlword', 'Statusword', 'NmtState', 'OpMode',
     'decode_state', 'controlword_towards', 'describe_statusword', 'emcy_description',
-    'EMCY_CODES',
+    'EMCY_CODES', 'STATE_STATUSWORD', 'EmcyCode', 'ErrorRegister', 'error_register_bits',
+    'SdoAbortCode',
 ]
 
 
@@ -63,9 +66,14 @@ class Controlword(enum.IntEnum):
 
 
 class NmtState(enum.IntEnum):
-    """NMT states as carried by the heartbeat (CiA 301 §7.2.8.3.2.1)."""
+    """NMT states as carried by the heartbeat (CiA 301 §7.2.8.3.2.1).
+
+    ``INITIALISING`` is an alias of ``BOOTUP``: a node in the NMT state *initialisation*
+    (CiA 301 §7.3.2.2.1) sends the boot-up message, whose state byte is 0.
+    """
 
     BOOTUP = 0x00
+    INITIALISING = 0x00
     STOPPED = 0x04
     OPERATIONAL = 0x05
     PRE_OPERATIONAL = 0x7F
@@ -91,12 +99,27 @@ _STATE_TABLE: tuple[tuple[int, int, State402], ...] = (
 )
 
 
-def decode_state(statusword: int) -> State402:
-    """The 402 state a statusword 6041h shows."""
+#: The statusword bits 0-3, 5, 6 a drive shows in each state (the "value" column of
+#: CiA 402-2 table 30 above): what a drive (the simulator) puts in 6041h.
+STATE_STATUSWORD: dict[State402, int] = {state: value for _, value, state in _STATE_TABLE}
+
+
+def _decode_state_by_table(statusword: int) -> State402:
     for mask, value, state in _STATE_TABLE:
         if statusword & mask == value:
             return state
     return State402.UNKNOWN
+
+
+#: every table 30 mask is within bits 0-3, 5, 6 (0x6F): the state of each of their 0x70
+#: combinations, so that decoding (every TPDO, every SYNC) is one index
+_STATE_OF_BITS: tuple[State402, ...] = tuple(_decode_state_by_table(bits) for bits in range(0x70))
+assert all(mask & ~0x6F == 0 for mask, _, _ in _STATE_TABLE)
+
+
+def decode_state(statusword: int) -> State402:
+    """The 402 state a statusword 6041h shows (CiA 402-2 table 30)."""
+    return _STATE_OF_BITS[statusword & 0x6F]
 
 
 def describe_statusword(statusword: int) -> str:
@@ -118,27 +141,38 @@ def controlword_towards(state: State402, target: State402) -> int | None:
     only on ``recover``) or the drive cannot take commands yet.
     """
     if state is target:
-        return {State402.OPERATION_ENABLED: int(Controlword.ENABLE_OPERATION),
-                State402.SWITCH_ON_DISABLED: int(Controlword.DISABLE_VOLTAGE),
-                State402.QUICK_STOP_ACTIVE: int(Controlword.QUICK_STOP)}.get(target)
+        # the word that keeps it there (every SYNC while enabled: no table built per call)
+        if target is State402.OPERATION_ENABLED:
+            return _CW_ENABLE_OPERATION
+        if target is State402.SWITCH_ON_DISABLED:
+            return _CW_DISABLE_VOLTAGE
+        if target is State402.QUICK_STOP_ACTIVE:
+            return _CW_QUICK_STOP
+        return None
     if state in (State402.FAULT, State402.FAULT_REACTION_ACTIVE, State402.NOT_READY_TO_SWITCH_ON,
                  State402.UNKNOWN):
         return None
     if target is State402.SWITCH_ON_DISABLED:
-        return int(Controlword.DISABLE_VOLTAGE)
+        return _CW_DISABLE_VOLTAGE
     if target is State402.QUICK_STOP_ACTIVE:
         # from OPERATION ENABLED: QUICK STOP ACTIVE; from the other powered states the
         # same word disables voltage (transitions 7, 10): the motor is not driving anyway
-        return int(Controlword.QUICK_STOP)
+        return _CW_QUICK_STOP
     if target is State402.OPERATION_ENABLED:
-        step = {
-            State402.SWITCH_ON_DISABLED: Controlword.SHUTDOWN,
-            State402.READY_TO_SWITCH_ON: Controlword.SWITCH_ON,
-            State402.SWITCHED_ON: Controlword.ENABLE_OPERATION,
-            State402.QUICK_STOP_ACTIVE: Controlword.DISABLE_VOLTAGE,
-        }.get(state)
-        return None if step is None else int(step)
+        return _CW_TOWARDS_ENABLED.get(state)
     raise ValueError(f'no path to {target.value}')
+
+
+_CW_ENABLE_OPERATION = int(Controlword.ENABLE_OPERATION)
+_CW_DISABLE_VOLTAGE = int(Controlword.DISABLE_VOLTAGE)
+_CW_QUICK_STOP = int(Controlword.QUICK_STOP)
+# towards OPERATION ENABLED: one step of the CiA 402 state machine from each powered state
+_CW_TOWARDS_ENABLED: dict[State402, int] = {
+    State402.SWITCH_ON_DISABLED: int(Controlword.SHUTDOWN),
+    State402.READY_TO_SWITCH_ON: int(Controlword.SWITCH_ON),
+    State402.SWITCHED_ON: int(Controlword.ENABLE_OPERATION),
+    State402.QUICK_STOP_ACTIVE: int(Controlword.DISABLE_VOLTAGE),
+}
 
 
 #: Common EMCY error codes (CiA 301 table 21, CiA 402-2 table 6); longest prefix wins.
@@ -177,6 +211,69 @@ EMCY_CODES: dict[int, str] = {
     0xF000: 'additional functions',
     0xFF00: 'device specific',
 }
+
+
+class EmcyCode(enum.IntEnum):
+    """EMCY error codes (CiA 301 table 21, CiA 402-2 table 6) the devices here produce;
+    :data:`EMCY_CODES` has the text of these and more."""
+
+    NO_ERROR = 0x0000            # error reset / no error
+    GENERIC = 0x1000
+    LOAD_CELL = 0x7300           # sensor
+    POSITION_SENSOR = 0x7305     # incremental sensor 1 fault
+    HEARTBEAT = 0x8130           # life guard / heartbeat error
+    BUS_OFF_RECOVERED = 0x8140
+    PDO_LENGTH = 0x8210          # PDO not processed due to length error
+    FOLLOWING_ERROR = 0x8611
+    REFERENCE_LIMIT = 0x8612     # target outside the software position limits
+
+
+class ErrorRegister(enum.IntFlag):
+    """Bits of the error register 1001h (CiA 301 §7.5.2.2), also byte 2 of an EMCY."""
+
+    GENERIC = 1 << 0
+    CURRENT = 1 << 1
+    VOLTAGE = 1 << 2
+    TEMPERATURE = 1 << 3
+    COMMUNICATION = 1 << 4       # overrun, error state, heartbeat
+    DEVICE_PROFILE = 1 << 5
+    MANUFACTURER = 1 << 7
+
+
+def error_register_bits(code: int) -> ErrorRegister:
+    """The 1001h bits an active EMCY error code sets (CiA 301 table 21 classes): 2xxxh
+    current, 3xxxh voltage, 4xxxh temperature, 81xxh/82xxh communication, 86xxh/87xxh
+    device profile (other classes: the generic bit alone); 0000h sets none."""
+    if code == 0:
+        return ErrorRegister(0)
+    bits = ErrorRegister.GENERIC
+    cls = code >> 12
+    if cls == 0x2:
+        bits |= ErrorRegister.CURRENT
+    elif cls == 0x3:
+        bits |= ErrorRegister.VOLTAGE
+    elif cls == 0x4:
+        bits |= ErrorRegister.TEMPERATURE
+    elif code >> 8 in (0x81, 0x82):
+        bits |= ErrorRegister.COMMUNICATION
+    elif code >> 8 in (0x86, 0x87):
+        bits |= ErrorRegister.DEVICE_PROFILE
+    return bits
+
+
+class SdoAbortCode(enum.IntEnum):
+    """SDO abort codes (CiA 301 table 22) an SDO server here answers with."""
+
+    READ_WRITE_ONLY = 0x06010001     # attempt to read a write-only object
+    WRITE_READ_ONLY = 0x06010002     # attempt to write a read-only object
+    NO_OBJECT = 0x06020000           # object does not exist in the object dictionary
+    NOT_MAPPABLE = 0x06040041        # object cannot be mapped to the PDO
+    PDO_LENGTH = 0x06040042          # mapped objects would exceed the PDO length
+    LENGTH_MISMATCH = 0x06070010     # data type / length of service parameter does not match
+    NO_SUBINDEX = 0x06090011         # sub-index does not exist
+    VALUE_RANGE = 0x06090030         # invalid value for parameter (download only)
+    VALUE_HIGH = 0x06090031          # value of parameter written too high
+    VALUE_LOW = 0x06090032           # value of parameter written too low
 
 
 def emcy_description(code: int) -> str:

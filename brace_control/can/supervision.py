@@ -216,6 +216,8 @@ class Limits:
     heartbeat_timeout: float       # s
     boot_timeout: float            # s
     command_timeout: float         # s
+    soft_force_limit: float = math.inf   # N: above it a motion decelerates and holds (no latch)
+    release_force: float = 0.0     # N: a relief ends once every force is below it
     jump_factor: float = 4.0       # a step above jump_factor·v_max·Δt + margin is impossible
     speed_factor: float = 1.5      # measured speed above speed_factor·v_max -> overspeed
     #: per-actuator (lo, hi) range (m or rad) from ``mechanism.actuator_limits``; ``None``:
@@ -256,6 +258,15 @@ class Limits:
                 f'parameter can.heartbeat_consumer_ms = {consumer:g} must exceed '
                 f'can.drive_heartbeat_ms = {producer:g} (SAFETY.md item 2)')
         force_limit = float(get('safety.force_limit'))
+        safety = cfg.get('safety', {}) if isinstance(cfg.get('safety'), Mapping) else {}
+        soft = float(safety.get('soft_force_limit', 0.0) or 0.8 * force_limit)
+        release = float(safety.get('release_force', 0.0) or 0.2 * force_limit)
+        if not 0.0 < soft <= force_limit:
+            raise ConfigError(f'parameter safety.soft_force_limit = {soft:g} must be in (0, '
+                              f'safety.force_limit = {force_limit:g}] (SAFETY.md 14)')
+        if not 0.0 < release < soft:
+            raise ConfigError(f'parameter safety.release_force = {release:g} must be in (0, '
+                              f'safety.soft_force_limit = {soft:g}) (SAFETY.md 15)')
         return cls(
             period=1.0 / float(get('can.sync_rate_hz')),
             v_max=float(get('actuator.max_velocity')),
@@ -264,6 +275,8 @@ class Limits:
             step_margin=float(get('safety.step_margin')),
             path_tolerance=float(get('safety.path_tolerance')),
             force_limit=force_limit,
+            soft_force_limit=soft,
+            release_force=release,
             saturation_counts=scaling.saturation_counts(float(get('safety.saturation_fraction'))),
             stale_periods=int(get('safety.stale_periods')),
             heartbeat_timeout=consumer / 1000.0,

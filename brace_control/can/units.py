@@ -1,11 +1,13 @@
 """Unit scaling between SI and the drives' device units — the only place it happens.
 
-docs/can.md, "Units":
+The master and the simulated brace (:mod:`brace_control.sim.brace`) both take their
+device units from :func:`scaling_from_config`. docs/can.md, "Units":
 
 * linear actuators: counts per metre = ``encoder_counts_per_rev / screw_lead``
   (8192 / 0.001 m = 8 192 000 counts/m) for 6064h position actual, 607Ah target,
-  607Ch home offset, 607Dh software limits, 6065h following error window; counts/s for
-  606Ch / 607Fh, counts/s² for 6083h–6085h;
+  6062h position demand, 607Ch home offset, 607Dh software limits, 6065h following
+  error window; counts/s for 606Ch / 607Fh / 60B1h (velocity offset), counts/s² for
+  6083h–6085h;
 * rotary drives (``actuator.kind: rotary``): counts per radian =
   ``encoder_counts_per_rev / (2π) × gear_ratio`` (joint angle, motor encoder);
 * load cell (2401h, INT16): N = counts × ``load_cell_n_per_count`` (push positive);

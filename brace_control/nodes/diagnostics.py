@@ -2,7 +2,10 @@
 
 Composed around a node (not a subclass): the node keeps a :class:`NodeDiagnostics`,
 updates its level/message/values, and the helper publishes ``/diagnostics`` at a fixed
-rate and immediately (throttled) when the level gets worse.
+rate and immediately (throttled) when the level gets worse. :meth:`NodeDiagnostics.watch`
+adds, at each publication, how many subscribers a publisher has matched (``subscribers
+/brace/pose_trajectory: 1``): whether the node downstream is connected, as this node's own
+DDS discovery sees it (a bring-up waits on it before the first goal).
 """
 from __future__ import annotations
 
@@ -48,6 +51,7 @@ class NodeDiagnostics:
         self.values: dict[str, Any] = {}
         self._min_interval = min_interval
         self._last_event = 0.0
+        self._watched: list[Any] = []
         self._timer = node.create_timer(period, self.publish, callback_group=callback_group)
 
     def set(self, level: Any, message: str, **values: Any) -> None:
@@ -61,7 +65,13 @@ class NodeDiagnostics:
             self._last_event = now
             self.publish()
 
+    def watch(self, publisher: Any) -> None:
+        """Report ``subscribers <topic>`` (matched subscriptions) of ``publisher``."""
+        self._watched.append(publisher)
+
     def status(self) -> DiagnosticStatus:
+        for pub in self._watched:
+            self.values[f'subscribers {pub.topic_name}'] = pub.get_subscription_count()
         return DiagnosticStatus(
             level=self.level, name=self.name, message=self.message,
             hardware_id=self.hardware_id,

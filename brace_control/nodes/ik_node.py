@@ -1,9 +1,19 @@
-"""ik_node: pose setpoints -> actuator setpoints (inverse kinematics of the device).
+"""ik_node: planned pose motions and pose setpoints -> actuator coordinates (inverse kinematics).
 
-Subscribes ``/brace/pose_setpoint`` (``geometry_msgs/PoseStamped``, in ``base_frame``),
-publishes ``/brace/actuator_setpoint`` (``sensor_msgs/JointState``: one entry per
-actuator of the YAML, ``position`` = IK, ``velocity`` = J · pose rate from the previous
-accepted setpoint, 0 for the first one or after a gap).
+Planned motions (ARCHITECTURE.md, "Data flow"): subscribes ``/brace/pose_trajectory``
+(``trajectory_msgs/MultiDOFJointTrajectory``, pose knots, see :mod:`.msgs`), converts the
+whole motion at once (:func:`~brace_control.trajectory.actuator.actuator_knots`: batch IK,
+``q_dot = J x_dot``, ``q_ddot`` along the path, knots added until the interpolated actuator
+motion is within 1 um of the IK of the planned poses) and publishes
+``/brace/actuator_trajectory`` (``trajectory_msgs/JointTrajectory``, same stamp). An empty
+trajectory (a stop) is passed on as an empty one. A motion it cannot convert (malformed, a
+pose without inverse kinematics) is reported on ``/brace/execution_status`` as
+``rejected`` with the reason and the trajectory's stamp; nothing is published.
+
+Teleoperation stream: subscribes ``/brace/pose_setpoint`` (``geometry_msgs/PoseStamped``,
+in ``base_frame``), publishes ``/brace/actuator_setpoint`` (``sensor_msgs/JointState``: one
+entry per actuator of the YAML, ``position`` = IK, ``velocity`` = J · pose rate from the
+previous accepted setpoint, 0 for the first one or after a gap).
 
 A setpoint that is malformed (NaN/inf, wrong frame, a non-planar quaternion for a planar
 device) or unreachable (outside the stroke, singular) is rejected: a throttled warning,
@@ -14,33 +24,26 @@ the driver's staleness check and the latency bench see when the pose was command
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Sequence
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory, MultiDOFJointTrajectory
 
-from ..mechanisms import UnreachablePose, mechanism_from_config
+from ..mechanisms import SingularPose, UnreachablePose, mechanism_from_config
+from ..trajectory import KnotTrajectory, TrajectoryError, actuator_knots
+from . import topics
 from .diagnostics import ERROR, OK, WARN, NodeDiagnostics
-from .msgs import MalformedMessage, joint_state, pose_from_msg, pose_kind, stamp_to_ns
+from .msgs import (MalformedMessage, joint_state, joint_trajectory_msg, pose_from_msg,
+                   pose_knots_from_msg, pose_kind, stamp_to_ns, status_msg)
 from .params import declare_device_parameters
 from .runner import run_node
 
-__all__ = ['IkNode', 'main', 'SETPOINT_QOS', 'POSE_SETPOINT_TOPIC', 'ACTUATOR_SETPOINT_TOPIC']
-
-POSE_SETPOINT_TOPIC = '/brace/pose_setpoint'
-ACTUATOR_SETPOINT_TOPIC = '/brace/actuator_setpoint'
-
-#: Setpoint streams: reliable, depth 10. At 200 Hz a best-effort depth-1 stream would
-#: let DDS drop a setpoint whenever a callback runs late; the driver's per-cycle step
-#: check (SAFETY.md 7) would then see a double step. Reliable with a few samples of
-#: history absorbs scheduling jitter (10 samples = 50 ms at 200 Hz) without building a
-#: backlog the staleness check would not catch (stale setpoints are held, SAFETY.md 1).
-SETPOINT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
-                          reliability=ReliabilityPolicy.RELIABLE,
-                          durability=DurabilityPolicy.VOLATILE)
+__all__ = ['IkNode', 'main']
 
 #: Rejection warnings are throttled to one per this many seconds (the stream is 200 Hz).
 REJECT_LOG_PERIOD = 1.0
@@ -52,6 +55,10 @@ def angle_aware_difference(a: np.ndarray, b: np.ndarray, angular: Sequence[int])
     for i in angular:
         d[i] = math.atan2(math.sin(d[i]), math.cos(d[i]))
     return d
+
+
+class NotConnected(Exception):
+    """The node downstream of a converted trajectory is not there (no subscriber)."""
 
 
 class IkNode(Node):
@@ -72,14 +79,70 @@ class IkNode(Node):
         self.accepted = 0
         self.rejected = 0
         self.last_rejection = ''
-        self._pub = self.create_publisher(JointState, ACTUATOR_SETPOINT_TOPIC, SETPOINT_QOS)
+        self.converted = 0
+        self.conversion_ms = float('nan')
+        self._pub = self.create_publisher(JointState, topics.ACTUATOR_SETPOINT, topics.SETPOINT_QOS)
         self._sub = self.create_subscription(
-            PoseStamped, POSE_SETPOINT_TOPIC, self._on_setpoint, SETPOINT_QOS)
+            PoseStamped, topics.POSE_SETPOINT, self._on_setpoint, topics.SETPOINT_QOS)
+        self._traj_pub = self.create_publisher(JointTrajectory, topics.ACTUATOR_TRAJECTORY,
+                                               topics.TRAJECTORY_QOS)
+        self._status_pub = self.create_publisher(DiagnosticStatus, topics.EXECUTION_STATUS,
+                                                 topics.STATUS_QOS)
+        self.create_subscription(MultiDOFJointTrajectory, topics.POSE_TRAJECTORY,
+                                 self._on_trajectory, topics.TRAJECTORY_QOS)
         self.diagnostics = NodeDiagnostics(self, f'brace_control/{node_name}')
-        self.diagnostics.set(OK, 'waiting for setpoints', accepted=0, rejected=0)
+        self.diagnostics.watch(self._traj_pub)
+        self.diagnostics.set(OK, 'waiting for trajectories and setpoints', accepted=0, rejected=0)
         self.get_logger().info(
             f'{type(self.mechanism).__name__} ({", ".join(self.actuator_names)}): '
-            f'{POSE_SETPOINT_TOPIC} -> {ACTUATOR_SETPOINT_TOPIC} in {self.base_frame!r}')
+            f'{topics.POSE_TRAJECTORY} -> {topics.ACTUATOR_TRAJECTORY}, '
+            f'{topics.POSE_SETPOINT} -> {topics.ACTUATOR_SETPOINT} in {self.base_frame!r}')
+
+    # ------------------------------------------------------------------ planned motions
+    def _on_trajectory(self, msg: MultiDOFJointTrajectory) -> None:
+        """A whole planned motion -> actuator knots, published once (or a rejection)."""
+        tag = stamp_to_ns(msg.header.stamp)
+        t0 = time.perf_counter()
+        try:
+            stamp_ns, times, P, V, A = pose_knots_from_msg(msg, frame_id=self.base_frame,
+                                                           mechanism=self.mechanism)
+            if times.size == 0:
+                out = joint_trajectory_msg(self.actuator_names, times, np.zeros((0, len(self.actuator_names))),
+                                           np.zeros((0, len(self.actuator_names))),
+                                           np.zeros((0, len(self.actuator_names))),
+                                           stamp=msg.header.stamp, frame_id=self.base_frame)
+                self._traj_pub.publish(out)
+                return
+            knots = actuator_knots(self.mechanism, KnotTrajectory(times, P, V, A))
+        except (MalformedMessage, TrajectoryError, ValueError) as exc:
+            self._reject_trajectory(tag, exc)
+            return
+        if self._traj_pub.get_subscription_count() == 0:
+            # the topic keeps no history: published now, the motion would be lost silently
+            self._reject_trajectory(tag, NotConnected(
+                f'nothing subscribes to {topics.ACTUATOR_TRAJECTORY} (is can_driver_node '
+                'running?): the motion would be lost'))
+            return
+        self._traj_pub.publish(joint_trajectory_msg(
+            self.actuator_names, knots.times, knots.positions, knots.velocities,
+            knots.accelerations, stamp=msg.header.stamp, frame_id=self.base_frame))
+        self.converted += 1
+        self.conversion_ms = (time.perf_counter() - t0) * 1e3
+        self.diagnostics.set(OK, 'converting trajectories', trajectories=self.converted,
+                             last_conversion_ms=f'{self.conversion_ms:.2f}',
+                             last_knots=int(knots.times.size))
+
+    def _reject_trajectory(self, tag: int, exc: Exception) -> None:
+        self.rejected += 1
+        kind = ('malformed' if isinstance(exc, MalformedMessage) else
+                'not connected' if isinstance(exc, NotConnected) else 'unreachable')
+        self.last_rejection = f'{kind} trajectory {tag} rejected: {exc}'
+        self.get_logger().error(self.last_rejection)
+        self.diagnostics.set(ERROR if kind == 'malformed' else WARN, self.last_rejection,
+                             rejected=self.rejected)
+        self._status_pub.publish(status_msg(
+            f'{self.get_name()}/trajectory/{tag}', 'rejected', level=DiagnosticStatus.ERROR,
+            stamp=tag, kind='rejected', reason=f'{kind}: {exc}'))
 
     # ------------------------------------------------------------------ callbacks
     def _on_setpoint(self, msg: PoseStamped) -> None:
@@ -112,7 +175,7 @@ class IkNode(Node):
     def _reject(self, exc: Exception) -> None:
         self.rejected += 1
         kind = 'unreachable' if isinstance(exc, UnreachablePose) else 'malformed'
-        reason = getattr(exc, 'reason', None) or ('singular' if type(exc).__name__ == 'SingularPose'
+        reason = getattr(exc, 'reason', None) or ('singular' if isinstance(exc, SingularPose)
                                                    else kind)
         self.last_rejection = f'{kind} setpoint rejected ({reason}): {exc}'
         self.get_logger().warning(self.last_rejection + '; holding the last valid setpoint',

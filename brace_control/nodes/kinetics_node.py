@@ -1,19 +1,32 @@
-"""kinetics_node: measured joint states -> measured pose and the wrench on the body.
+"""kinetics_node: measured joint states -> the estimated pose, its covariance, the wrench on the body.
 
-Subscribes ``/brace/joint_states`` (``sensor_msgs/JointState``: ``position`` = actuator
-lengths/angles, ``effort`` = load-cell force N / motor torque N·m).
+Subscribes ``/brace/joint_states`` (``sensor_msgs/JointState``: ``position`` = encoder
+lengths/angles, ``effort`` = load-cell force N / joint torque N·m, along ``+q``).
 
-* ``/brace/pose`` (``PoseStamped`` in ``base_frame``): forward kinematics with branch
-  tracking, ``forward_nearest(q, hint)``; the hint is the configured home pose at start,
-  then the last measured pose, so the solution stays on the assembly mode the device
-  is in.
+The pose is the load-aware estimate of :class:`~brace_control.mechanisms.pose_estimate.PoseEstimator`:
+each leg is the actuator in series with ``actuator.stiffness``, so the platform sits on the
+leg lengths ``L = q - effort / stiffness``, not on the encoder lengths; weighted least
+squares on the inverse-kinematics residual, continuous with the last estimate (the first
+one from ``forward_nearest`` at the home pose); a least-squares pose when the lengths do not
+close (never silence, never a jump to another assembly mode). Covariance from the encoder
+quantum, ``kinetics.load_cell_noise`` and ``kinetics.stiffness_rel_std``.
+
+* ``/brace/pose`` (``PoseStamped`` in ``base_frame``): the estimate.
+* ``/brace/pose_with_covariance`` (``PoseWithCovarianceStamped``, ``base_frame``): the same
+  pose, covariance 6x6 row-major in (x, y, z, rot x, rot y, rot z); a planar device's
+  (x, y, theta) in the x, y, rot z entries; what the device does not measure gets
+  ``kinetics.unobserved_variance`` (see :func:`~brace_control.nodes.msgs.pose_covariance_6x6`).
 * ``/brace/wrench`` (``WrenchStamped`` in ``platform_frame``): the wrench the actuators
-  apply to the platform (and so to the body), W = Jᵀ f, force components rotated into
-  the platform frame, moment about the platform origin. SI.
-* ``/diagnostics``: WARN when another assembly mode is within ``ambiguity_distance`` of
-  the tracked one (the forward solution is ambiguous) or cond(J) is above
-  ``singularity_warn_fraction`` × ``mechanism.singularity_condition_max``; ERROR when the
-  forward kinematics has no solution for the measured lengths.
+  apply to the platform (and so to the body) at the *estimated* pose with the measured
+  efforts, W = Jᵀ f, force components rotated into the platform frame, moment about the
+  platform origin. SI.
+
+All three carry the joint state's stamp. ``/diagnostics``: the residual (largest, in m or
+rad and in standard deviations), exact or least squares, cond(J), the pose's standard
+deviations; WARN for a least-squares pose, a step limited by ``kinetics.max_step``, a pose
+near a singularity (cond(J) above ``singularity_warn_fraction`` × ``singularity_condition_max``),
+another assembly mode within ``ambiguity_distance`` or a slack cable; ERROR for a
+malformed joint state.
 """
 from __future__ import annotations
 
@@ -22,28 +35,21 @@ import time
 from collections.abc import Sequence
 
 import numpy as np
-from geometry_msgs.msg import PoseStamped, WrenchStamped
-from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, WrenchStamped
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
+from ..can.units import actuator_kind, scaling_from_config
 from ..mechanisms import mechanism_from_config
-from ..mechanisms.base import rot2
+from ..mechanisms.pose_estimate import MeasurementModel, PoseEstimate, PoseEstimator
+from . import topics
 from .diagnostics import ERROR, OK, WARN, NodeDiagnostics
-from .msgs import MalformedMessage, joint_state_arrays, pose_kind, pose_msg, wrench_msg
+from .msgs import (MalformedMessage, joint_state_arrays, pose_kind, pose_msg,
+                   pose_with_covariance_msg, wrench_msg)
 from .params import declare_device_parameters
 from .runner import run_node
 
-__all__ = ['KineticsNode', 'main', 'STATE_QOS', 'platform_frame_wrench']
-
-JOINT_STATES_TOPIC = '/brace/joint_states'
-POSE_TOPIC = '/brace/pose'
-WRENCH_TOPIC = '/brace/wrench'
-
-#: Measured state: reliable, depth 10 (a late subscriber or a slow callback loses no
-#: sample of the 100 Hz stream; recorded bags are complete).
-STATE_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+__all__ = ['KineticsNode', 'main', 'platform_frame_wrench']
 
 
 def platform_frame_wrench(pose: np.ndarray, wrench: np.ndarray, kind: str) -> np.ndarray:
@@ -55,35 +61,48 @@ def platform_frame_wrench(pose: np.ndarray, wrench: np.ndarray, kind: str) -> np
     if kind != 'planar':
         return wrench
     out = np.array(wrench, dtype=float)
-    out[:2] = rot2(float(pose[2])).T @ out[:2]
+    # R(theta)^T (Fx, Fy) in plain floats (numpy's 2x2 product costs more than the rest)
+    theta = float(pose[2])
+    c, s = math.cos(theta), math.sin(theta)
+    fx, fy = float(out[0]), float(out[1])
+    out[0], out[1] = c * fx + s * fy, c * fy - s * fx
     return out
 
 
 class KineticsNode(Node):
-    """Forward kinematics and statics of the configured mechanism on the measured state."""
+    """The load-aware pose estimate and the statics of the configured mechanism."""
 
     def __init__(self, *, node_name: str = 'kinetics_node', **kwargs) -> None:
         super().__init__(node_name, **kwargs)
-        self.cfg = declare_device_parameters(self, ('mechanism', 'actuator'))
+        self.cfg = declare_device_parameters(self, ('mechanism', 'actuator', 'kinetics'))
         self.mechanism = mechanism_from_config(self.cfg)
+        kin, act = self.cfg['kinetics'], self.cfg['actuator']
+        scaling = scaling_from_config(self.cfg)
+        self.rotary = actuator_kind(self.cfg) == 'rotary'
+        self.estimator = PoseEstimator(
+            self.mechanism,
+            MeasurementModel(stiffness=float(act['stiffness']), resolution=1.0 / scaling.counts_per_unit,
+                             force_noise=float(kin['load_cell_noise']),
+                             stiffness_rel_std=float(kin['stiffness_rel_std']),
+                             force_resolution=scaling.newton_per_count,
+                             force_limit=float(act['max_force'])),
+            rotary=self.rotary, max_step=float(kin['max_step']),
+            max_iterations=int(kin['max_iterations']), residual_sigmas=float(kin['residual_sigmas']))
         self.base_frame: str = self.cfg['base_frame']
         self.platform_frame: str = self.cfg['platform_frame']
         self.actuator_names = tuple(self.mechanism.actuator_names)
+        # a joint state outside the actuator range by more than 5 % of it is no pose
+        lo, hi = self.mechanism.actuator_limits
+        margin = 0.05 * (hi - lo)
+        self._q_low, self._q_high = lo - margin, hi + margin
         self._kind = pose_kind(self.mechanism)
         self._cond_max = float(self.cfg['mechanism'].get('singularity_condition_max', 1e4))
-        self.ambiguity_distance = self.declare_parameter(
-            'kinetics.ambiguity_distance', 0.02, ParameterDescriptor(
-                description='another assembly mode closer than this (pose norm, m/rad) '
-                            '-> ambiguous forward solution',
-                floating_point_range=[FloatingPointRange(from_value=0.0, to_value=10.0)])).value
-        self.singularity_warn_fraction = self.declare_parameter(
-            'kinetics.singularity_warn_fraction', 0.5, ParameterDescriptor(
-                description='cond(J) above this fraction of singularity_condition_max -> warn',
-                floating_point_range=[FloatingPointRange(from_value=1e-6, to_value=1.0)])).value
-        self.ambiguity_check_period = self.declare_parameter(
-            'kinetics.ambiguity_check_period', 0.05, ParameterDescriptor(
-                description='seconds between full forward solutions (all assembly modes)',
-                floating_point_range=[FloatingPointRange(from_value=0.0, to_value=10.0)])).value
+        self.ambiguity_distance = float(kin['ambiguity_distance'])
+        self.singularity_warn_fraction = float(kin['singularity_warn_fraction'])
+        self.ambiguity_check_period = float(kin['ambiguity_check_period'])
+        self.unobserved_variance = float(kin['unobserved_variance'])
+        #: the last estimate (pose, covariance, residual, ...), ``None`` before the first
+        self.estimate: PoseEstimate | None = None
         self.pose: np.ndarray = np.asarray(self.mechanism.home_pose, dtype=float)
         self.wrench: np.ndarray | None = None
         self.condition = float('nan')
@@ -91,12 +110,19 @@ class KineticsNode(Node):
         self._last_ambiguity_check = -math.inf
         self.received = 0
         self.failed = 0
-        self._pose_pub = self.create_publisher(PoseStamped, POSE_TOPIC, STATE_QOS)
-        self._wrench_pub = self.create_publisher(WrenchStamped, WRENCH_TOPIC, STATE_QOS)
+        self._pose_pub = self.create_publisher(PoseStamped, topics.POSE, topics.STATE_QOS)
+        self._pose_cov_pub = self.create_publisher(PoseWithCovarianceStamped, topics.POSE_WITH_COVARIANCE,
+                                                   topics.STATE_QOS)
+        self._wrench_pub = self.create_publisher(WrenchStamped, topics.WRENCH, topics.STATE_QOS)
         self._sub = self.create_subscription(
-            JointState, JOINT_STATES_TOPIC, self._on_joint_states, STATE_QOS)
+            JointState, topics.JOINT_STATES, self._on_joint_states, topics.STATE_QOS)
         self.diagnostics = NodeDiagnostics(self, f'brace_control/{node_name}')
         self.diagnostics.set(OK, 'waiting for joint states')
+
+    @property
+    def residual(self) -> np.ndarray | None:
+        """The last estimate's leg-length residual ``L - l(pose)`` (m or rad), ``None`` before one."""
+        return None if self.estimate is None else self.estimate.residual.copy()
 
     # ------------------------------------------------------------------ callbacks
     def _on_joint_states(self, msg: JointState) -> None:
@@ -107,55 +133,78 @@ class KineticsNode(Node):
         except MalformedMessage as exc:
             self._fail(f'joint state rejected: {exc}')
             return
-        q = arrays['position']
-        lo, hi = self.mechanism.actuator_limits
-        margin = 0.05 * (hi - lo)
-        if np.any(q < lo - margin) or np.any(q > hi + margin):
+        q, effort = arrays['position'], arrays['effort']
+        if (q < self._q_low).any() or (q > self._q_high).any():
             # e.g. incremental encoders before homing read 0: not a pose, not a fault here
             self.failed += 1
-            msg = (f'joint positions {np.round(q, 4).tolist()} are outside the actuator range '
-                   f'(drives not homed?): no pose published')
-            self.get_logger().warning(msg, throttle_duration_sec=5.0)
-            self.diagnostics.set(WARN, msg, failed=self.failed)
+            text = (f'joint positions {np.round(q, 4).tolist()} are outside the actuator range '
+                    f'(drives not homed?): no pose published')
+            self.get_logger().warning(text, throttle_duration_sec=5.0)
+            self.diagnostics.set(WARN, text, failed=self.failed)
             return
         try:
-            pose = np.asarray(self.mechanism.forward_nearest(q, self.pose), dtype=float)
+            est = self.estimator.update(q, effort)
+            wrench = None if effort is None else self.estimator.wrench(est.pose, effort)
         except ValueError as exc:
-            self._fail(f'no forward solution for q = {np.round(q, 5).tolist()}: {exc}')
+            self._fail(f'no pose estimate for q = {np.round(q, 6).tolist()}: {exc}')
             return
-        self.pose = pose
+        self.estimate, self.pose, self.condition = est, est.pose, est.condition
         stamp = msg.header.stamp
-        self._pose_pub.publish(pose_msg(pose, frame_id=self.base_frame, stamp=stamp,
+        self._pose_pub.publish(pose_msg(est.pose, frame_id=self.base_frame, stamp=stamp,
                                         mechanism=self.mechanism))
-        jac = self.mechanism.jacobian(pose)
-        if arrays['effort'] is not None:
-            w = np.asarray(self.mechanism.wrench(pose, arrays['effort']), dtype=float)
-            self.wrench = platform_frame_wrench(pose, w, self._kind)
+        self._pose_cov_pub.publish(pose_with_covariance_msg(
+            est.pose, est.covariance, frame_id=self.base_frame, stamp=stamp,
+            mechanism=self.mechanism, unobserved_variance=self.unobserved_variance))
+        if wrench is not None:
+            self.wrench = platform_frame_wrench(est.pose, wrench, self._kind)
             self._wrench_pub.publish(wrench_msg(self.wrench, frame_id=self.platform_frame,
                                                 stamp=stamp, kind=self._kind))
-        self._supervise(q, pose, jac)
+        self._supervise(est)
 
-    def _supervise(self, q: np.ndarray, pose: np.ndarray, jac: np.ndarray) -> None:
-        s = np.linalg.svd(jac, compute_uv=False)
-        self.condition = float(s[0] / s[-1]) if s[-1] > 0 else math.inf
+    def _supervise(self, est: PoseEstimate) -> None:
         now = time.monotonic()
+        values = self.diagnostics.values
         if now - self._last_ambiguity_check >= self.ambiguity_check_period:
             self._last_ambiguity_check = now
-            others = [np.asarray(p, float) for p in self.mechanism.forward(q)]
-            dists = sorted(float(np.linalg.norm(p - pose)) for p in others)
-            # the tracked solution itself is one of them (distance ~0)
+            try:
+                others = [np.asarray(p, float) for p in self.mechanism.forward(est.leg_lengths)]
+            except ValueError:
+                others = []
+            dists = sorted(float(np.linalg.norm(p - est.pose)) for p in others)
+            # the tracked solution itself is one of them (distance ~0) when the legs close
             nearest_other = dists[1] if len(dists) > 1 else math.inf
             self.ambiguous = nearest_other < self.ambiguity_distance
-            self.diagnostics.values['assembly_modes'] = len(others)
-            self.diagnostics.values['nearest_other_mode'] = f'{nearest_other:.4g}'
-        self.diagnostics.values['condition'] = f'{self.condition:.4g}'
-        self.diagnostics.values['pose'] = np.round(pose, 5).tolist()
-        if self.condition > self.singularity_warn_fraction * self._cond_max:
-            self.diagnostics.set(WARN, f'near a singularity: cond(J) = {self.condition:.3g}')
+            values['assembly_modes'] = len(others)
+            values['nearest_other_mode'] = f'{nearest_other:.4g}'
+        unit = 'rad' if self.rotary else 'm'
+        worst = int((np.abs(est.residual) / est.leg_sigma).argmax())
+        values['solution'] = 'exact' if est.exact else 'least squares'
+        values['residual_max'] = f'{est.residual_max:.3g} {unit}'
+        values['residual_sigmas'] = f'{est.residual_sigmas:.3g}'
+        values['condition'] = f'{est.condition:.4g}'
+        values['iterations'] = est.iterations
+        values['pose'] = est.pose.round(6).tolist()
+        values['pose_sigma'] = [float(f'{s:.3g}') for s in np.sqrt(est.covariance.diagonal())]
+        values['slack'] = list(est.slack)
+        if not est.exact:
+            self.diagnostics.set(WARN, (
+                f'least squares: the leg lengths do not close (actuator {self.actuator_names[worst]} '
+                f'off by {est.residual[worst]:.3g} {unit} = {est.residual_sigmas:.3g} sigma); the pose '
+                'is the least-squares fit continuous with the last estimate'))
+        elif est.step_limited:
+            self.diagnostics.set(WARN, (
+                f'the lengths point farther than kinetics.max_step = {self.estimator.max_step} from the '
+                'last estimate (another assembly mode, or a jump in the readings): the estimate moved '
+                'continuously, at most max_step per iteration'))
+        elif est.condition > self.singularity_warn_fraction * self._cond_max:
+            self.diagnostics.set(WARN, f'near a singularity: cond(J) = {est.condition:.3g}')
         elif self.ambiguous:
             self.diagnostics.set(WARN, 'forward solution ambiguous: another assembly mode '
                                        f'within {self.ambiguity_distance} of the tracked one')
-        elif self.diagnostics.level != OK or self.received == 1:
+        elif est.slack:
+            self.diagnostics.set(WARN, f'cables {", ".join(est.slack)} read no tension (slack?): '
+                                       'their lengths are not weighed')
+        elif self.diagnostics.level != OK or self.received == 1 or self.diagnostics.message != 'tracking':
             self.diagnostics.set(OK, 'tracking')
 
     def _fail(self, message: str) -> None:
@@ -166,8 +215,8 @@ class KineticsNode(Node):
 
 def main(args: Sequence[str] | None = None) -> int:
     return run_node(KineticsNode, executable='kinetics_node', args=args,
-                    summary='forward kinematics + wrench: /brace/joint_states -> '
-                            '/brace/pose, /brace/wrench')
+                    summary='load-aware pose estimate + wrench: /brace/joint_states -> '
+                            '/brace/pose, /brace/pose_with_covariance, /brace/wrench')
 
 
 if __name__ == '__main__':

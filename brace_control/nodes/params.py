@@ -57,6 +57,27 @@ SCHEMA: dict[str, Param] = {
     'actuator.torque_constant': Param(0.0229, 'motor torque constant (N·m/A; rotary: 6077h scaling)', (1e-6, 100.0), True),
     'actuator.rated_current': Param(1.0, "motor rated current (A): 1000 ‰ of 6077h = rated_current × "
                                     "torque_constant × gear_ratio N·m at the joint", (1e-6, 1e4), True),
+    'actuator.stiffness': Param(1.0e6, 'axial stiffness of each actuator with its load path in series '
+                                '(N/m; rotary: N·m/rad): leg length = encoder - effort / stiffness',
+                                (1.0, 1e12), True),
+    # kinetics_node: the load-aware pose estimate (brace_control.mechanisms.pose_estimate)
+    'kinetics.load_cell_noise': Param(0.05, 'standard deviation of one load-cell (N) or torque (N·m) '
+                                      'reading, for the pose covariance', (0.0, 1e4), True),
+    'kinetics.stiffness_rel_std': Param(0.05, 'relative standard deviation of actuator.stiffness, '
+                                        'for the pose covariance', (0.0, 1.0), True),
+    'kinetics.max_step': Param(0.02, 'longest solver step of the pose estimate (pose norm, m or rad): '
+                               'longer ones are damped, the estimate never jumps', (1e-6, 10.0), True),
+    'kinetics.max_iterations': Param(8, 'solver iterations per joint state', (1, 100), True),
+    'kinetics.residual_sigmas': Param(3.0, 'the legs close (exact) when every leg-length residual is within '
+                                      'this many standard deviations, else least squares', (0.1, 1e6), True),
+    'kinetics.unobserved_variance': Param(1e6, 'variance (m^2, rad^2) on /brace/pose_with_covariance '
+                                          'entries the device does not measure', (1.0, 1e12), True),
+    'kinetics.ambiguity_distance': Param(0.02, 'another assembly mode closer than this (pose norm, m/rad) '
+                                         '-> ambiguous forward solution', (0.0, 10.0), True),
+    'kinetics.singularity_warn_fraction': Param(0.5, 'cond(J) above this fraction of '
+                                                'singularity_condition_max -> warn', (1e-6, 1.0), True),
+    'kinetics.ambiguity_check_period': Param(0.05, 'seconds between full forward solutions (all '
+                                             'assembly modes)', (0.0, 10.0), True),
     # trajectory
     'trajectory.rate_hz': Param(200.0, 'setpoint rate (Hz)', (1.0, 2000.0)),
     'trajectory.profile': Param('minimum_jerk', 'motion profile',
@@ -68,6 +89,15 @@ SCHEMA: dict[str, Param] = {
     'trajectory.fitts_b': Param(0.3, "Fitts' law slope b (s/bit)", (0.0, 60.0)),
     'trajectory.fitts_w': Param(0.01, "Fitts' law target width W (m)", (1e-6, 10.0)),
     'trajectory.path_check_samples': Param(200, 'samples of a path checked against the limits', (2, 100000)),
+    'trajectory.min_wrench_capacity': Param([0.0], 'the smallest wrench capacity per wrench axis (the '
+                                            "mechanism's wrench_axes: N or N·m) a planned path may pass; 0: "
+                                            'not checked', read_only=True),
+    'trajectory.limit_margin': Param(0.8, 'share of the actuator speed and acceleration limits a plan may '
+                                     'use (the fastest axis never runs at saturation)', (0.05, 1.0), True),
+    'trajectory.max_path_poses': Param(1000, 'most poses a nav_msgs/Path goal may have (larger ones are '
+                                       'rejected)', (1, 1000000), True),
+    'trajectory.planning_budget': Param(1.0, 'longest a goal may take to plan (s); longer: rejected',
+                                        (0.01, 60.0), True),
     # CAN
     'can.interface': Param('virtual', 'python-can interface (virtual, socketcan, ...)', read_only=True),
     'can.channel': Param('brace0', 'python-can channel', read_only=True),
@@ -93,12 +123,22 @@ SCHEMA: dict[str, Param] = {
     'safety.command_timeout': Param(0.015, 'no setpoint received for this long -> hold (s)', (0.001, 5.0), True),
     'safety.following_error_window': Param(0.003, 'following error window 6065h (m or rad)', (1e-6, 1.0), True),
     'safety.path_tolerance': Param(0.005, 'tracking error in actuator coordinates -> abort and hold (m or rad)', (1e-6, 1.0), True),
-    'safety.tracking_latency': Param(0.5, 'setpoint-to-measurement delay allowed by the tracking check (s)', (0.0, 5.0), True),
     'safety.step_margin': Param(0.0005, 'margin on |dq| per cycle (m or rad)', (0.0, 1.0), True),
     'safety.force_limit': Param(250.0, 'load-cell force / torque -> protective stop', (0.0, 1e5), True),
     'safety.saturation_fraction': Param(0.95, 'load-cell saturation threshold (of full scale)', (0.5, 1.0), True),
     'safety.stale_periods': Param(3, 'periods without sensor update -> fault', (1, 1000), True),
     'safety.max_wrench': Param([150.0, 150.0, 30.0], 'platform wrench limit per axis', read_only=True),
+    'safety.soft_force_limit': Param(0.0, 'load-cell force / torque above which a motion that keeps '
+                                     'pressing decelerates and holds, nothing latched (0: 0.8 x '
+                                     'safety.force_limit)', (0.0, 1e5), True),
+    'safety.release_force': Param(0.0, 'a relief (~/relieve) backs off until every force is below this '
+                                  '(0: 0.2 x safety.force_limit)', (0.0, 1e5), True),
+    'safety.pose_tolerance': Param([0.002, 0.002, 0.00524], 'a goal succeeds only when the estimated pose '
+                                   'is this close to it, per pose coordinate (m or rad)', read_only=True),
+    'safety.settle_time': Param(0.5, 'after a motion finished, how long the estimate may take to reach '
+                                'the goal (s)', (0.0, 60.0), True),
+    'safety.report_timeout': Param(1.0, 'silence of the driver (no start, no end) before a goal is '
+                                   'aborted (s)', (0.05, 60.0), True),
     # simulation
     'sim.rest_pose': Param([0.0, 0.39, 0.0872664626], "body's rest pose", read_only=True),
     'sim.stiffness': Param([0.0] * 9, 'body stiffness (row-major dof x dof)', read_only=True),
@@ -107,7 +147,8 @@ SCHEMA: dict[str, Param] = {
     'sim.load_cell_noise': Param(0.05, 'load-cell noise std (N)', (0.0, 1e3), True),
     'sim.load_cell_offset': Param(0.0, 'load-cell offset (N)', (-1e3, 1e3), True),
     'sim.seed': Param(1, 'random seed of the simulator', (0, 2**31 - 1), True),
-    'sim.drive_acceleration_factor': Param(10.0, "simulated motors' acceleration capability, x actuator.max_acceleration", (1.0, 1000.0), True),
+    'sim.drive_bandwidth_hz': Param(30.0, 'position-loop bandwidth of the simulated CSP drives (Hz), '
+                                    'Kp = 2 pi x bandwidth', (1.0, 500.0), True),
     'sim.truth_rate_hz': Param(20.0, 'rate of the ground-truth topics /brace/sim/* (Hz)', (0.1, 1000.0), True),
 }
 

@@ -4,8 +4,10 @@
 ``sim`` sections), puts one :class:`~brace_control.sim.drive.SimulatedDrive` per node id
 on the bus (:class:`~brace_control.sim.host.SimBus`) and, on every SYNC from the master:
 
-1. advances each actuator by ``dt`` (CSP tracking with the setpoint latched at the
-   previous SYNC; speed/acceleration limits, end stops);
+1. advances each actuator by ``dt`` (the CSP position loop of
+   :class:`~brace_control.sim.drive.SimulatedDrive` on the reference interpolated from the
+   targets latched at the previous SYNCs, ``sim.drive_bandwidth_hz``; the actuator's
+   speed/acceleration limits, end stops);
 2. the physics (quasi-static, the thoracic ring massless):
 
    * the torso on the ring: ``W_body = -K (pose - rest) - D pose_dot`` (``sim.stiffness``,
@@ -13,7 +15,8 @@ on the bus (:class:`~brace_control.sim.host.SimBus`) and, on every SYNC from the
    * the pose of the thoracic ring: the equilibrium continuous with the previous pose
      (the branch ``mech.forward_nearest(q, pose)`` follows) of the ring between the legs
      and the torso, each leg = actuator length ``q_i`` in series with a stiffness
-     ``sim.leg_stiffness`` (N/m, default 1e6; see :meth:`SimulatedBrace._equilibrium`);
+     ``sim.leg_stiffness`` (N/m, default ``actuator.stiffness``, else 1e6; see
+     :meth:`SimulatedBrace._equilibrium`);
    * actuator forces from the equilibrium ``J^T f = -W_body`` (push positive); the wrench
      the brace applies to the body is ``J^T f``. (A rigid model has no bounded solution at
      the brace's singular poses, e.g. every theta = 0 pose incl. the home pose: the leg
@@ -32,9 +35,10 @@ the continuum robot): rigid and quasi-static, any mechanism through its protocol
 squares. The cable 4-RPR is compliant like the lumbar brace's legs, each cable pulling
 only: a cable pushed (paid out longer than its anchors' distance) goes slack, reads zero,
 and the platform settles on the taut ones (:meth:`SimulatedBrace._equilibrium`). Rotary
-drives (``actuator.kind: rotary``): positions in rad (counts/rad =
-``encoder_counts_per_rev x gear_ratio / 2 pi``), the effort is the joint torque in 6077h
-(per mille of ``rated_current x torque_constant x gear_ratio``).
+drives (``actuator.kind: rotary``): positions in rad, the effort is the joint torque in
+6077h (per mille of ``rated_current x torque_constant x gear_ratio``). The device units
+(counts per m or rad, N or N·m per count, full scale) are those of
+:func:`brace_control.can.units.scaling_from_config`, the master's.
 
 The actuators' physical lengths at power-up are ``mech.inverse(mech.home_pose)`` (the
 parked brace); the incremental encoders read 0 until homed (method 35 with 607Ch = the
@@ -52,7 +56,9 @@ Example::
 from __future__ import annotations
 
 import math
+import operator
 import threading
+from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -60,13 +66,20 @@ from typing import Any
 
 import numpy as np
 
+from ..can.units import actuator_kind, scaling_from_config
 from ..config import ConfigError, DeviceConfig, load_device_config
 from ..mechanisms import mechanism_from_config
-from .drive import DriveLimits, SimulatedDrive
+from ..mechanisms.planar_floats import PlanarRprFloats
+from .drive import DEFAULT_BANDWIDTH_HZ, DriveLimits, SimulatedDrive
 from .faults import FaultInjector
 from .host import SimBus
 
 __all__ = ['SimulatedBrace', 'BraceTruth']
+
+#: SYNCs of load-cell noise drawn at once
+NOISE_BLOCK = 500
+#: SYNCs of ground truth kept for :meth:`SimulatedBrace.truth_at`
+TRUTH_HISTORY = 64
 
 
 @dataclass(frozen=True)
@@ -83,6 +96,9 @@ class BraceTruth:
     :ivar load_cell_counts: the readings put in 2401h.
     :ivar sync_count: SYNCs processed so far.
     :ivar time: simulated time (s), the sum of the SYNC steps.
+    :ivar stamp: the bus timestamp (s, wall clock) of the SYNC this state follows: the instant
+        the drives' TPDOs answering that SYNC describe, so measured and true states of the
+        same SYNC carry the same time.
     """
 
     lengths: np.ndarray
@@ -95,33 +111,7 @@ class BraceTruth:
     load_cell_counts: np.ndarray
     sync_count: int
     time: float
-
-
-class _PlanarRprLegs:
-    """Leg lengths and Jacobian of a planar 3-RPR in plain floats: the per-SYNC hot path.
-
-    The same formulas as the mechanism model (``B_i = P + R(theta) b_i``, ``L_i = |B_i - A_i|``,
-    row ``i`` of ``J`` = ``(u_i, rho_i x u_i)``), without numpy's per-call overhead on
-    3-vectors (~10 us per evaluation instead of ~60 us). :class:`SimulatedBrace` checks at
-    start-up that they agree with ``mech.inverse`` / ``mech.jacobian``, else it uses those.
-    """
-
-    def __init__(self, base_anchors: np.ndarray, platform_anchors: np.ndarray) -> None:
-        self.a = [(float(x), float(y)) for x, y in np.asarray(base_anchors, dtype=float)]
-        self.b = [(float(x), float(y)) for x, y in np.asarray(platform_anchors, dtype=float)]
-
-    def __call__(self, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        x, y, th = float(pose[0]), float(pose[1]), float(pose[2])
-        c, s = math.cos(th), math.sin(th)
-        lengths, rows = [], []
-        for (ax, ay), (bx, by) in zip(self.a, self.b):
-            rx, ry = c * bx - s * by, s * bx + c * by
-            dx, dy = x + rx - ax, y + ry - ay
-            n = math.hypot(dx, dy)
-            ux, uy = dx / n, dy / n
-            lengths.append(n)
-            rows.append((ux, uy, rx * uy - ry * ux))
-        return np.array(lengths), np.array(rows)
+    stamp: float = 0.0
 
 
 def _solve3(a: list[list[float]], r: list[float]) -> tuple[float, float, float]:
@@ -148,16 +138,6 @@ def _matrix(value: Any, n: int, name: str) -> np.ndarray:
 
 def _matrix3(value: Any, name: str) -> np.ndarray:
     return _matrix(value, 3, name)
-
-
-def _is_rotary(act: Mapping[str, Any]) -> bool:
-    """``actuator.kind`` (default: linear when a ``screw_lead`` is given), as docs/can.md."""
-    kind = act.get('kind')
-    if kind is None:
-        return 'screw_lead' not in act
-    if kind not in ('linear', 'rotary'):
-        raise ConfigError(f'actuator.kind = {kind!r}: expected "linear" or "rotary"')
-    return kind == 'rotary'
 
 
 class SimulatedBrace:
@@ -190,23 +170,14 @@ class SimulatedBrace:
             cfg.relative_file(str(can_cfg.get('eds', 'lumbar_drive.eds')))
         #: rotary drives (``actuator.kind: rotary``): positions in rad, the effort is the joint
         #: torque reported as 6077h torque actual; linear: m and the load cell 2401h
-        self.rotary = _is_rotary(act)
-        cpr = float(act['encoder_counts_per_rev'])
-        if self.rotary:
-            gear = float(act.get('gear_ratio', 1.0))
-            #: encoder counts per actuator unit (m, or rad for rotary drives)
-            self.counts_per_m = cpr * gear / (2.0 * math.pi)
-            if 'rated_current' in act or 'torque_constant' in act:
-                # 6077h: per mille of the motor's rated torque (6076h = rated current x kt)
-                self.rated_force = float(act['rated_current']) * float(act['torque_constant']) * gear
-                self.n_per_count = self.rated_force / 1000.0
-            else:
-                self.rated_force = float(act['load_cell_rated_force'])
-                self.n_per_count = float(act['load_cell_n_per_count'])
-        else:
-            self.counts_per_m = cpr / float(act['screw_lead'])
-            self.n_per_count = float(act['load_cell_n_per_count'])
-            self.rated_force = float(act['load_cell_rated_force'])
+        self.rotary = actuator_kind(cfg) == 'rotary'
+        scaling = scaling_from_config(cfg)          # the master's device units (can/units.py)
+        #: encoder counts per actuator unit (m, or rad for rotary drives)
+        self.counts_per_m = scaling.counts_per_unit
+        #: N (N·m) per count of 2401h (rotary: of 6077h, per mille of the rated torque)
+        self.n_per_count = scaling.newton_per_count
+        #: full scale of the force (torque) reading, N (N·m)
+        self.rated_force = scaling.rated_force
         lo, hi = self.mechanism.actuator_limits
         dof = int(self.mechanism.dof)
         self.dof = dof
@@ -216,9 +187,10 @@ class SimulatedBrace:
         self.noise_n = float(sim.get('load_cell_noise', 0.0))
         self.offset_n = float(sim.get('load_cell_offset', 0.0))
         self._rng = np.random.default_rng(int(sim.get('seed', 0) if seed is None else seed))
+        self._noise_block: list[list[float]] = []
         q0 = self.mechanism.inverse(self.mechanism.home_pose)
         #: series stiffness of each leg (N/m), see :meth:`_equilibrium`
-        self.leg_stiffness = float(sim.get('leg_stiffness', 1.0e6))
+        self.leg_stiffness = float(sim.get('leg_stiffness', act.get('stiffness', 1.0e6)))
         #: |J^T f + W_body| below this (N, N·m) ends the equilibrium iteration
         self.equilibrium_tol = 1e-5
         self.equilibrium_failures = 0
@@ -249,21 +221,29 @@ class SimulatedBrace:
         #: names of the cables that are slack after the last SYNC (compliant cables)
         self.slack: tuple[str, ...] = ()
         self.drives: list[SimulatedDrive] = []
-        # the simulated drive brakes towards its latched target without velocity
-        # feed-forward: at the rated acceleration it would lag a moving target by v^2 / 2a
-        # (docs/can.md); the bundled YAMLs give it 10x the planning acceleration
-        accel_factor = float(sim.get('drive_acceleration_factor', 10.0))
-        if not (math.isfinite(accel_factor) and accel_factor >= 1.0):
-            raise ConfigError(f'sim.drive_acceleration_factor: expected >= 1, got {accel_factor!r}')
+        if 'drive_acceleration_factor' in sim:
+            raise ConfigError(
+                'sim.drive_acceleration_factor was removed: the simulated drives are CSP servo '
+                'drives (interpolated 607Ah, 60B1h velocity feed-forward, a position loop of '
+                'sim.drive_bandwidth_hz) and accelerate at actuator.max_acceleration, the '
+                "actuator's real limit; delete the key from the device file (docs/can.md)")
+        #: position-loop bandwidth of the simulated drives (Hz), ``sim.drive_bandwidth_hz``
+        bandwidth = sim.get('drive_bandwidth_hz', DEFAULT_BANDWIDTH_HZ)
+        if isinstance(bandwidth, bool) or not isinstance(bandwidth, (int, float)) \
+                or not math.isfinite(bandwidth) or bandwidth <= 0.0:
+            raise ConfigError(f'sim.drive_bandwidth_hz = {bandwidth!r}: expected a positive '
+                              f'number of Hz (e.g. {DEFAULT_BANDWIDTH_HZ})')
+        self.drive_bandwidth_hz = float(bandwidth)
         for i, node_id in enumerate(self.node_ids):
             limits = DriveLimits(
                 counts_per_m=self.counts_per_m, max_velocity=float(act['max_velocity']),
-                max_acceleration=float(act['max_acceleration']) * accel_factor,
+                max_acceleration=float(act['max_acceleration']),
                 stroke_min=float(lo[i]), stroke_max=float(hi[i]),
                 # 6077h torque actual is in per mille of this (rotary: the rated torque)
                 max_force=self.rated_force if self.rotary else float(act.get('max_force', 250.0)))
             self.drives.append(SimulatedDrive(node_id, eds_path, limits=limits,
-                                              initial_length_m=float(q0[i])))
+                                              initial_length_m=float(q0[i]),
+                                              bandwidth_hz=self.drive_bandwidth_hz))
         self.host = SimBus(channel or str(can_cfg.get('channel', 'brace0')),
                            interface=interface or str(can_cfg.get('interface', 'virtual')),
                            sync_handler=self._on_sync, dt_source=dt_source)
@@ -273,13 +253,15 @@ class SimulatedBrace:
         self._pose = np.asarray(self.mechanism.home_pose, dtype=float).copy()
         self._f_unloaded = np.zeros(n)             # efforts holding the mechanism itself (see _rigid)
         self._q_last = q0.copy()
-        self._static: tuple[np.ndarray, ...] | None = None
+        self._q_last_list: list[float] = self._q_last.tolist()
+        self._static: tuple[Any, ...] | None = None
         self._last_dynamic: tuple[np.ndarray, ...] | None = None
         self._time = 0.0
         self._sync_count = 0
         #: per-actuator load-cell override (N) for fault injection; None = physics
         self.load_cell_override: list[float | None] = [None] * n
         self._truth = self._physics(0.0)
+        self._history: deque[BraceTruth] = deque([self._truth], maxlen=TRUTH_HISTORY)
         self.faults = FaultInjector(self)
         if start:
             self.start()
@@ -316,6 +298,42 @@ class SimulatedBrace:
         with self.lock:
             return self._truth
 
+    def truth_at(self, stamp: float) -> BraceTruth:
+        """The state after the SYNC whose bus timestamp is nearest ``stamp`` (wall clock, s),
+        among the last :data:`TRUTH_HISTORY`: the truth of the same SYNC as a measurement."""
+        with self.lock:
+            history = tuple(self._history) or (self._truth,)
+        return min(history, key=lambda t: abs(t.stamp - stamp))
+
+    def set_rest_pose(self, pose: np.ndarray) -> None:
+        """Move the body's rest pose (the patient moves): the next SYNC's physics pulls the
+        platform towards it. Thread safe.
+
+        :raises ValueError: not ``dof`` finite numbers.
+        """
+        arr = np.asarray(pose, dtype=float)
+        if arr.shape != (self.dof,) or not np.all(np.isfinite(arr)):
+            raise ValueError(f'body rest pose: expected {self.dof} finite numbers, got {pose!r}')
+        with self.lock:
+            self.rest_pose = arr.copy()
+            self._static = None            # the held state is no longer in equilibrium
+
+    def static_forces(self, q: np.ndarray, guess: np.ndarray | None = None
+                      ) -> tuple[np.ndarray, np.ndarray]:
+        """The quasi-static equilibrium of device and body for drive positions ``q`` (no
+        damping, no noise): ``(pose, efforts)``, continuous with ``guess`` (default: the
+        current pose). What the load cells read if the brace held still there: the static
+        load a report compares measured forces with. Does not change the simulation."""
+        saved = self._pose, self.slack
+        if guess is not None:
+            self._pose = np.asarray(guess, dtype=float).copy()
+        try:
+            q = np.asarray(q, dtype=float)
+            pose, _, _, f = (self._equilibrium(q, 0.0) if self.compliant else self._rigid(q, 0.0))
+        finally:
+            self._pose, self.slack = saved
+        return pose, f
+
     def lengths_to_counts(self, lengths_m: np.ndarray) -> np.ndarray:
         """Homed encoder counts of actuator lengths (counts = floor(length * counts/m))."""
         return np.floor(np.asarray(lengths_m, dtype=float) * self.counts_per_m).astype(np.int64)
@@ -328,26 +346,26 @@ class SimulatedBrace:
         truth = self._physics(dt)
         with self.lock:
             self._truth = truth
+            self._history.append(truth)
         for d in self.drives:
             d.on_sync(dt, phase='comm')
 
-    def _fast_legs(self) -> '_PlanarRprLegs | None':
-        """The plain-float leg model when the mechanism is a planar 3-RPR and it agrees."""
+    def _fast_legs(self) -> PlanarRprFloats | None:
+        """The plain-float leg model (:class:`~brace_control.mechanisms.planar_floats.
+        PlanarRprFloats`, ~10 us per evaluation instead of ~60 us) when the mechanism is a
+        planar 3-RPR and it agrees with ``mech.inverse`` / ``mech.jacobian``."""
         mech = self.mechanism
         base = getattr(mech, 'base_anchors', None)
         plat = getattr(mech, 'platform_anchors', None)
         if mech.dof != 3 or mech.n_actuators != 3 or base is None or plat is None:
             return None
         try:
-            legs = _PlanarRprLegs(base, plat)
-            for pose in (mech.home_pose, mech.home_pose + np.array([0.004, -0.003, 0.05])):
-                lengths, jac = legs(pose)
-                if not (np.allclose(lengths, mech.inverse(pose), atol=1e-12)
-                        and np.allclose(jac, mech.jacobian(pose), atol=1e-12)):
-                    return None
+            legs = PlanarRprFloats(base, plat)
         except (ValueError, TypeError):
             return None
-        return legs
+        home = mech.home_pose
+        return legs if legs.agrees_with(mech, (home, home + np.array([0.004, -0.003, 0.05])),
+                                        atol=1e-12, rtol=1e-5) else None
 
     def _kinematics(self, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Leg lengths L(pose) (stroke not checked) and J(pose)."""
@@ -528,36 +546,58 @@ class SimulatedBrace:
         self._f_unloaded = np.zeros_like(f) if unloaded is None else np.asarray(unloaded(q), dtype=float)
         return pose, J, w_body, f + self._f_unloaded
 
+    def _noise(self) -> list[float]:
+        """One SYNC's load-cell noise, drawn from the seeded generator in blocks of
+        :data:`NOISE_BLOCK` SYNCs (the same sequence as one draw per SYNC, without numpy's
+        per-call cost on the SYNC path)."""
+        if not self._noise_block:
+            block = self._rng.normal(0.0, self.noise_n, (NOISE_BLOCK, len(self.drives)))
+            self._noise_block = block.tolist()[::-1]
+        return self._noise_block.pop()
+
     def _physics(self, dt: float) -> BraceTruth:
         """Pose from lengths, body wrench, actuator forces, load-cell counts (see module doc)."""
-        q = np.array([d.length_m for d in self.drives])
-        q_dot = np.array([d.velocity_mps for d in self.drives])
-        moving_q = bool(np.any(q_dot))
+        lengths = [d.length_m for d in self.drives]
+        rates = [d.velocity_mps for d in self.drives]
+        moving_q = any(v != 0.0 for v in rates)              # as np.any: NaN counts as moving
         self._elapsed += dt
-        if self._static is not None and dt > 0 and not moving_q \
-                and np.array_equal(q, self._q_last):
-            pose, J, pose_dot, w_body, forces = self._static     # at rest: only noise changes
+        static = self._static
+        if static is not None and dt > 0 and not moving_q \
+                and all(map(operator.eq, lengths, self._q_last_list)):
+            # at rest: only the noise changes (plain floats: this runs at every SYNC)
+            pose, J, pose_dot, w_body, forces, forces_l, unloaded, brace_wrench = static
+            if unloaded is not self._f_unloaded:             # static_forces() of a rigid model
+                brace_wrench = J.T @ (forces - self._f_unloaded)
+            brace_wrench = brace_wrench.copy()
             self._elapsed = 0.0
-        elif (not self.compliant and moving_q and self._skipped + 1 < self.physics_every
-              and self._last_dynamic is not None and dt > 0):
-            # a costly rigid model runs every physics_every SYNCs while moving (GIL budget)
-            self._skipped += 1
-            pose, J, pose_dot, w_body, forces = self._last_dynamic
+            q, q_dot = np.array(lengths), np.array(rates)
         else:
-            self._skipped = 0
-            dt_phys, self._elapsed = (dt if self.compliant else self._elapsed), 0.0
-            pose, J, w_body, forces = (self._equilibrium(q, dt) if self.compliant
-                                       else self._rigid(q, dt_phys, moving_q))
-            pose_dot = (pose - self._pose) / dt_phys if dt > 0 else np.zeros(self.dof)
-            self._last_dynamic = (pose, J, pose_dot, w_body, forces)
-            self._pose, self._q_last = pose, q
-            moving = bool(np.any(q_dot)) or float(np.max(np.abs(pose_dot))) > 1e-9
-            self._static = None if moving else (pose, J, np.zeros(self.dof), w_body, forces)
-        noise = self._rng.normal(0.0, self.noise_n, len(self.drives)).tolist() \
-            if self.noise_n > 0.0 else [0.0] * len(self.drives)
+            q, q_dot = np.array(lengths), np.array(rates)
+            if (not self.compliant and moving_q and self._skipped + 1 < self.physics_every
+                    and self._last_dynamic is not None and dt > 0):
+                # a costly rigid model runs every physics_every SYNCs while moving (GIL budget)
+                self._skipped += 1
+                pose, J, pose_dot, w_body, forces = self._last_dynamic
+            else:
+                self._skipped = 0
+                dt_phys, self._elapsed = (dt if self.compliant else self._elapsed), 0.0
+                pose, J, w_body, forces = (self._equilibrium(q, dt) if self.compliant
+                                           else self._rigid(q, dt_phys, moving_q))
+                pose_dot = (pose - self._pose) / dt_phys if dt > 0 else np.zeros(self.dof)
+                self._last_dynamic = (pose, J, pose_dot, w_body, forces)
+                self._pose, self._q_last, self._q_last_list = pose, q, lengths
+                moving = bool(np.any(q_dot)) or float(np.max(np.abs(pose_dot))) > 1e-9
+                # the held state, with what every SYNC at rest reuses: the forces as floats
+                # and J^T (f - f_unloaded) for this f_unloaded
+                self._static = None if moving else (
+                    pose, J, np.zeros(self.dof), w_body, forces, forces.tolist(), self._f_unloaded,
+                    J.T @ (forces - self._f_unloaded))
+            forces_l = forces.tolist()
+            brace_wrench = J.T @ (forces - self._f_unloaded)  # the bars' own push is not on the body
+        noise = self._noise() if self.noise_n > 0.0 else [0.0] * len(self.drives)
         rated, npc = self.rated_force, self.n_per_count
         counts_l = []
-        for i, (d, fi) in enumerate(zip(self.drives, forces.tolist())):
+        for i, (d, fi) in enumerate(zip(self.drives, forces_l)):
             ov = self.load_cell_override[i]
             reading = fi + self.offset_n + noise[i] if ov is None else ov
             reading = min(max(reading, -rated), rated)       # saturation at full scale
@@ -569,6 +609,5 @@ class SimulatedBrace:
         counts = np.array(counts_l)
         self._time += dt
         self._sync_count += 1 if dt > 0 else 0
-        brace_wrench = J.T @ (forces - self._f_unloaded)     # the bars' own push is not on the body
         return BraceTruth(q, q_dot, pose.copy(), pose_dot, w_body, brace_wrench, forces,
-                          counts, self._sync_count, self._time)
+                          counts, self._sync_count, self._time, self.host.last_sync_stamp)

@@ -32,13 +32,29 @@ What it implements
   error; homing: homing error).
 * Modes 6060h/6061h: 8 cyclic synchronous position (CSP), 6 homing (methods 35 and 37:
   the current position becomes the home offset 607Ch; any other method: homing error).
-* CSP tracking of 607Ah with the actuator's speed and acceleration limits (and 607Fh),
-  software limits 607Dh (checked once homed), hard end stops (the stroke), following
-  error 6065h/6066h, quick stop 605Ah/6085h, fault reaction.
+* CSP as a servo drive does it (CiA 402-2 §"cyclic synchronous position mode"): the
+  target 607Ah and the velocity offset 60B1h (counts/s, velocity feed-forward) latched
+  at SYNC k are the end point of a segment that starts at the previous target (and
+  offset) and is interpolated linearly over the interpolation period 60C2h
+  (``value x 10^index`` s; the reference holds at the new target after one period if
+  the next SYNC is late). A position loop on the encoder count (see
+  :meth:`SimulatedDrive._csp_step`): ``v_cmd = v_ff + Kp (r - x)``, ``Kp = 2 pi
+  bandwidth``, integrated in sub-steps with ``Kp h <= 0.2``; beyond
+  ``e_lin = 0.9 a_max / Kp^2`` the feedback follows the braking curve
+  ``sqrt(2 (0.9 a_max) (|e| - e_lin / 2))`` instead, so a large error (a step of the
+  target) is closed without overshoot. The motor's speed and acceleration are clamped
+  at the actuator's limits (``max_velocity`` and 607Fh, ``max_acceleration``). Entering
+  CSP control (OPERATION ENABLED, or mode 8 while enabled) the reference, 607Ah and
+  60B1h take the actual position and zero: no jump whatever 607Ah held before.
+  Software limits 607Dh (checked once homed), hard end stops (the stroke), following
+  error 6065h/6066h against the position demand 6062h, quick stop 605Ah/6085h (its own
+  deceleration ramp, not the position loop), fault reaction.
 * An incremental encoder: 6064h reads 0 at power-up (and after NMT reset node) until
   homed. Positions in counts inside, metres outside.
 
-Faults and their EMCY codes (CiA 301 Table 21 / CiA 402): following error 8611h,
+Faults and their EMCY codes (:class:`~brace_control.can.cia402.EmcyCode`, CiA 301 Table 21
+/ CiA 402; the codes, states and statusword bits are those of :mod:`brace_control.can.cia402`,
+shared with the master): following error 8611h,
 target outside the software position limits 8612h, heartbeat of the master lost 8130h
 (error register bit 4, communication); reset (fault cleared) 0000h. A fault is latched
 in FAULT until a fault reset (rising edge of controlword bit 7) *and* its cause is gone:
@@ -51,32 +67,50 @@ timer thread both call in).
 """
 from __future__ import annotations
 
+import functools
 import math
 import struct
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from enum import IntEnum
 from pathlib import Path
 
 import canopen
 from canopen import objectdictionary as odmod
 from canopen.sdo import SdoAbortedError, SdoServer
 
+from ..can.cia402 import (STATE_STATUSWORD, EmcyCode, ErrorRegister, NmtState, OpMode,
+                          SdoAbortCode, State402, Statusword, error_register_bits)
+
 __all__ = [
     'DriveLimits', 'SimulatedDrive', 'NmtState', 'State402', 'EmcyCode',
-    'MODE_CSP', 'MODE_HOMING',
+    'MODE_CSP', 'MODE_HOMING', 'DEFAULT_BANDWIDTH_HZ',
 ]
 
-MODE_CSP = 8
-MODE_HOMING = 6
+MODE_CSP = int(OpMode.CYCLIC_SYNC_POSITION)
+MODE_HOMING = int(OpMode.HOMING)
 
-# CiA 301 SDO abort codes used here
-ABORT_NOT_MAPPABLE = 0x06040041
-ABORT_PDO_LENGTH = 0x06040042
-ABORT_VALUE_RANGE = 0x06090030
-ABORT_VALUE_HIGH = 0x06090031
+#: Position-loop bandwidth (Hz) of the simulated drives unless told otherwise: position
+#: loops of small servo drives close at tens of Hz (their velocity loops, not modelled
+#: here, at hundreds); 30 Hz gives ``Kp = 2 pi 30 = 188 1/s``, well inside a 500 Hz SYNC
+#: (``Kp T = 0.38``, two sub-steps), and rejects a disturbance within ``5 / Kp = 27 ms``.
+DEFAULT_BANDWIDTH_HZ = 30.0
+# sub-steps of the position loop per SYNC: Kp h at most this (explicit Euler of the
+# first-order loop is monotone for Kp h < 1)
+_MAX_KP_H = 0.2
+# share of the motor's acceleration limit the large-error braking curve uses (the
+# remainder lets the acceleration-limited motor follow its own braking curve without
+# overshoot in discrete time)
+_BRAKING_SHARE = 0.9
+
+_SW_VOLTAGE_ENABLED = int(Statusword.VOLTAGE_ENABLED)
+_SW_WARNING = int(Statusword.WARNING)
+_SW_REMOTE = int(Statusword.REMOTE)
+_SW_TARGET_REACHED = int(Statusword.TARGET_REACHED)
+_SW_INTERNAL_LIMIT = int(Statusword.INTERNAL_LIMIT)
+_SW_OP_12 = int(Statusword.OP_SPECIFIC_12)     # CSP: follows the command; homing: attained
+_SW_OP_13 = int(Statusword.OP_SPECIFIC_13)     # CSP: following error; homing: error
 
 _STRUCT_CODE = {
     odmod.UNSIGNED8: 'B', odmod.INTEGER8: 'b', odmod.UNSIGNED16: 'H',
@@ -85,63 +119,12 @@ _STRUCT_CODE = {
 }
 
 
-class NmtState(IntEnum):
-    """CiA 301 §7.3.2 NMT states, valued as the heartbeat's state byte."""
-
-    INITIALISING = 0x00
-    STOPPED = 0x04
-    OPERATIONAL = 0x05
-    PRE_OPERATIONAL = 0x7F
-
-
-class State402(IntEnum):
-    """CiA 402 power drive system states (bits 0-3, 5, 6 of the statusword)."""
-
-    NOT_READY_TO_SWITCH_ON = 0x0000
-    SWITCH_ON_DISABLED = 0x0040
-    READY_TO_SWITCH_ON = 0x0021
-    SWITCHED_ON = 0x0023
-    OPERATION_ENABLED = 0x0027
-    QUICK_STOP_ACTIVE = 0x0007
-    FAULT_REACTION_ACTIVE = 0x000F
-    FAULT = 0x0008
-
-
-class EmcyCode(IntEnum):
-    """EMCY error codes (CiA 301 Table 21; CiA 402 Annex) the simulated drive produces."""
-
-    NO_ERROR = 0x0000            # error reset / no error
-    GENERIC = 0x1000
-    HEARTBEAT = 0x8130           # life guard / heartbeat error
-    BUS_OFF_RECOVERED = 0x8140
-    FOLLOWING_ERROR = 0x8611
-    REFERENCE_LIMIT = 0x8612     # target outside the software position limits
-    POSITION_SENSOR = 0x7305     # incremental sensor 1 fault
-    LOAD_CELL = 0x7300           # sensor
-
-
-_ERR_REG_GENERIC = 0x01
-
-
-def _error_register_bit(code: int) -> int:
-    """Error register 1001h bit of an EMCY code (CiA 301 Table 47 / Table 21): 2xxxh
-    current, 3xxxh voltage, 4xxxh temperature, 81xxh/82xxh communication, 86xxh/87xxh
-    device profile; the generic bit 0 is set with any of them."""
-    cls = code >> 12
-    if cls == 0x2:
-        return 0x02
-    if cls == 0x3:
-        return 0x04
-    if cls == 0x4:
-        return 0x08
-    if code >> 8 in (0x81, 0x82):
-        return 0x10
-    if code >> 8 in (0x86, 0x87):
-        return 0x20
-    return 0x00
-
-_POWERED = (State402.READY_TO_SWITCH_ON, State402.SWITCHED_ON,
-            State402.OPERATION_ENABLED, State402.QUICK_STOP_ACTIVE)
+_POWERED = frozenset((State402.READY_TO_SWITCH_ON, State402.SWITCHED_ON,
+                      State402.OPERATION_ENABLED, State402.QUICK_STOP_ACTIVE))
+# the statusword bits a state alone sets: bits 0-3, 5, 6 of CiA 402-2 table 30, remote (9),
+# voltage enabled (4) in the powered states
+_STATE_BITS = {state: bits | _SW_REMOTE | (_SW_VOLTAGE_ENABLED if state in _POWERED else 0)
+               for state, bits in STATE_STATUSWORD.items()}
 
 
 @dataclass(frozen=True)
@@ -167,7 +150,7 @@ class DriveLimits:
 class _Pdo:
     """One PDO's communication + mapping, compiled for the hot path."""
 
-    __slots__ = ('num', 'cob_id', 'valid', 'trans_type', 'entries', 'codec',
+    __slots__ = ('num', 'cob_id', 'valid', 'trans_type', 'entries', 'codec', 'getters',
                  'sync_count', 'event_ms', 'next_event', 'pending')
 
     def __init__(self, num: int) -> None:
@@ -177,6 +160,8 @@ class _Pdo:
         self.trans_type = 255
         self.entries: list[tuple[int, int]] = []
         self.codec = struct.Struct('<')
+        #: one zero-argument reader per mapped entry, ``getter() == drive._get(index, sub)``
+        self.getters: tuple[Callable[[], int], ...] = ()
         self.sync_count = 0
         self.event_ms = 0
         self.next_event = 0.0
@@ -204,6 +189,8 @@ class SimulatedDrive:
     :param send: ``send(cob_id, data)`` puts a frame on the bus; ``None`` until a
         :class:`~brace_control.sim.host.SimBus` attaches the drive.
     :param clock: monotonic time source (s), for heartbeats and event timers.
+    :param bandwidth_hz: position-loop bandwidth (Hz), ``Kp = 2 pi bandwidth_hz`` (1/s);
+        see :meth:`_csp_step`.
 
     The drive is inert until :meth:`power_on` (boot-up message, PRE-OPERATIONAL).
     """
@@ -211,9 +198,17 @@ class SimulatedDrive:
     def __init__(self, node_id: int, eds: str | Path, *, limits: DriveLimits | None = None,
                  initial_length_m: float | None = None,
                  send: Callable[[int, bytes], None] | None = None,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic,
+                 bandwidth_hz: float = DEFAULT_BANDWIDTH_HZ) -> None:
         if not 1 <= node_id <= 127:
             raise ValueError(f'node id must be 1..127, got {node_id}')
+        if isinstance(bandwidth_hz, bool) or not isinstance(bandwidth_hz, (int, float)) \
+                or not math.isfinite(bandwidth_hz) or bandwidth_hz <= 0.0:
+            raise ValueError(f'position-loop bandwidth must be a positive number of Hz, '
+                             f'got {bandwidth_hz!r}')
+        #: position-loop bandwidth (Hz) and gain ``Kp = 2 pi bandwidth`` (1/s)
+        self.bandwidth_hz = float(bandwidth_hz)
+        self.kp = 2.0 * math.pi * self.bandwidth_hz
         self.node_id = node_id
         self.eds = str(eds)
         self.od = canopen.import_od(self.eds, node_id)
@@ -270,6 +265,15 @@ class SimulatedDrive:
         self._homing_attained = False
         self._homing_error = False
         self._target = 0                # latched 607Ah (counts)
+        # CSP reference segment (m, m/s; SI of the actuator): from the previous target and
+        # velocity offset to the ones latched at the last SYNC, over _seg_period_s
+        self._seg_from_m = self.length_m
+        self._seg_to_m = self.length_m
+        self._vff_from = 0.0
+        self._vff_to = 0.0
+        self._seg_t = 0.0               # s since the segment started (its SYNC)
+        self._seg_period_s = 0.002      # 60C2h at the segment's start
+        self._demand_m = self.length_m  # position demand (6062h) after the last motion step
         self._fe_time_s = 0.0           # time spent outside the following error window
         self._fe_counts = 0
         self._at_hard_stop = False
@@ -289,30 +293,28 @@ class SimulatedDrive:
     @property
     def statusword(self) -> int:
         """6041h, CiA 402 bits (see the module docstring)."""
-        sw = int(self.state) | 0x0200          # bit 9 remote
-        if self.state in _POWERED:
-            sw |= 0x0010                       # bit 4 voltage enabled
-        if self.state == State402.QUICK_STOP_ACTIVE:
-            sw &= ~0x0020
-        if self.warning:
-            sw |= 0x0080
+        # the state's bits 0-3, 5, 6 (bit 5 quick stop is active low: clear only in
+        # QUICK STOP ACTIVE), CiA 402-2 table 30
+        sw = _STATE_BITS[self.state]
+        if (self.injected_warning or self.master_heartbeat_lost) and self.warning:
+            sw |= _SW_WARNING
         if self._limit_active or self._at_hard_stop:
-            sw |= 0x0800
+            sw |= _SW_INTERNAL_LIMIT
         mode = self._store[(0x6061, 0)]
         if mode == MODE_HOMING:
             if self._homing_attained:
-                sw |= 0x1000 | 0x0400
+                sw |= _SW_OP_12 | _SW_TARGET_REACHED
             if self._homing_error:
-                sw |= 0x2000
+                sw |= _SW_OP_13
         elif mode == MODE_CSP:
             if self.state == State402.OPERATION_ENABLED:
-                sw |= 0x1000                   # drive follows the command value
+                sw |= _SW_OP_12                # drive follows the command value
                 if abs(self._fe_counts) <= self._store[(0x6065, 0)]:
-                    sw |= 0x0400
+                    sw |= _SW_TARGET_REACHED
             elif abs(self.velocity_mps) < 1e-9:
-                sw |= 0x0400
+                sw |= _SW_TARGET_REACHED
             if self._fe_time_s > 0.0:
-                sw |= 0x2000                   # following error
+                sw |= _SW_OP_13                # following error
         return sw
 
     @property
@@ -361,6 +363,15 @@ class SimulatedDrive:
 
     # ------------------------------------------------------------------ bus entry points
 
+    def listens_to(self) -> set[int]:
+        """COB-IDs of the frames this drive acts on besides NMT and SYNC: its valid RPDOs,
+        its SDO requests and the heartbeat it consumes (a bus may route by them)."""
+        with self.lock:
+            cobs = set(self._rpdo_by_cob) | {0x600 + self.node_id}
+            if self._hb_consumer_id:
+                cobs.add(0x700 + self._hb_consumer_id)
+            return cobs
+
     def on_frame(self, cob_id: int, data: bytes, t: float) -> None:
         """A received frame other than SYNC (NMT, SDO, RPDO, heartbeats)."""
         if self.disconnected:
@@ -387,27 +398,32 @@ class SimulatedDrive:
                         self._apply_rpdo(pdo, data)
 
     def on_sync(self, dt: float, *, phase: str = 'all') -> None:
-        """SYNC (CiA 301 §7.2.5). ``phase``: ``'motion'`` advances the actuator by ``dt``;
-        ``'comm'`` sends the synchronous TPDOs and applies the latched RPDOs;
-        ``'all'`` both (a :class:`~brace_control.sim.brace.SimulatedBrace` runs the
-        physics in between)."""
+        """SYNC (CiA 301 §7.2.5). ``phase``: ``'motion'`` advances the actuator by ``dt``
+        (the interval since the previous SYNC); ``'comm'`` sends the synchronous TPDOs,
+        applies the RPDOs latched since the previous SYNC and starts the CSP reference
+        segment towards their target; ``'all'`` both (a
+        :class:`~brace_control.sim.brace.SimulatedBrace` runs the physics in between)."""
         if self.disconnected:
             return
         with self.lock:
             if phase in ('motion', 'all'):
                 self._motion_step(dt)
-            if phase in ('comm', 'all') and self.nmt_state == NmtState.OPERATIONAL:
-                for pdo in self._tpdo:
-                    if pdo.valid and pdo.trans_type <= 240:
-                        pdo.sync_count += 1
-                        if pdo.sync_count >= max(1, pdo.trans_type):
-                            pdo.sync_count = 0
-                            if not self.tpdo_muted:
-                                self._tx(pdo.cob_id, self._pack_tpdo(pdo))
-                for pdo in self._rpdo:
-                    if pdo.pending is not None:
-                        data, pdo.pending = pdo.pending, None
-                        self._apply_rpdo(pdo, data)
+            if phase in ('comm', 'all'):
+                if self.nmt_state == NmtState.OPERATIONAL:
+                    for pdo in self._tpdo:
+                        if pdo.valid and pdo.trans_type <= 240:
+                            pdo.sync_count += 1
+                            if pdo.sync_count >= max(1, pdo.trans_type):
+                                pdo.sync_count = 0
+                                if not self.tpdo_muted:
+                                    self._tx(pdo.cob_id, self._pack_tpdo(pdo))
+                    for pdo in self._rpdo:
+                        if pdo.pending is not None:
+                            data, pdo.pending = pdo.pending, None
+                            self._apply_rpdo(pdo, data)
+                if self.state == State402.OPERATION_ENABLED \
+                        and self._store[(0x6061, 0)] == MODE_CSP:
+                    self._start_segment()
 
     def tick(self, now: float) -> float:
         """Timers: heartbeat producer, heartbeat consumer, TPDO event timers.
@@ -464,12 +480,12 @@ class SimulatedDrive:
                 self._tx(cob & 0x7FF, payload)
 
     def _error_register(self) -> int:
-        reg = 0
+        reg = ErrorRegister(0)
         for code in self._faults:
-            reg |= _ERR_REG_GENERIC | _error_register_bit(code)
+            reg |= error_register_bits(code)
         if self.master_heartbeat_lost:
-            reg |= _ERR_REG_GENERIC | 0x10
-        return reg
+            reg |= ErrorRegister.GENERIC | ErrorRegister.COMMUNICATION
+        return int(reg)
 
     # ------------------------------------------------------------------ NMT (CiA 301 §7.3.2)
 
@@ -544,6 +560,9 @@ class SimulatedDrive:
         self.velocity_mps = 0.0
         self._fe_time_s = 0.0
         self._target = self._true_position_counts()
+        self._seg_from_m = self._seg_to_m = self._demand_m = self.length_m
+        self._vff_from = self._vff_to = 0.0
+        self._seg_t = 0.0
         self.master_heartbeat_lost = False
         # NOT READY TO SWITCH ON -> SWITCH ON DISABLED (transition 1, automatic)
         self.state = State402.SWITCH_ON_DISABLED
@@ -583,24 +602,38 @@ class SimulatedDrive:
             fmt += _STRUCT_CODE[var.data_type]
         pdo.entries = entries
         pdo.codec = struct.Struct(fmt)
+        pdo.getters = tuple(self._getter(index, sub) for index, sub in entries)
         pdo.pending = None
+
+    def _getter(self, index: int, sub: int) -> Callable[[], int]:
+        """A zero-argument reader of a mapped object, equal to ``self._get(index, sub)`` at
+        every call: the TPDO1 process data (statusword, position actual, load cell) read
+        directly, every other object through :meth:`_get`."""
+        cls = type(self)
+        if index == 0x6041:
+            return functools.partial(cls.statusword.fget, self)
+        if index == 0x6064:
+            return functools.partial(cls.position_counts.fget, self)
+        if index == 0x2401:
+            return functools.partial(getattr, self, 'load_cell_counts')
+        return functools.partial(self._get, index, sub)
 
     def _var(self, index: int, sub: int) -> odmod.ODVariable:
         if index not in self.od:
-            raise SdoAbortedError(0x06020000)
+            raise SdoAbortedError(SdoAbortCode.NO_OBJECT)
         obj = self.od[index]
         if isinstance(obj, odmod.ODVariable):
             if sub != 0:
-                raise SdoAbortedError(0x06090011)
+                raise SdoAbortedError(SdoAbortCode.NO_SUBINDEX)
             return obj
         if sub not in obj:
-            raise SdoAbortedError(0x06090011)
+            raise SdoAbortedError(SdoAbortCode.NO_SUBINDEX)
         return obj[sub]
 
     # ------------------------------------------------------------------ PDO codec
 
     def _pack_tpdo(self, pdo: _Pdo) -> bytes:
-        return pdo.codec.pack(*[self._get(i, s) for i, s in pdo.entries])
+        return pdo.codec.pack(*[get() for get in pdo.getters])
 
     def _apply_rpdo(self, pdo: _Pdo, data: bytes) -> None:
         values = pdo.codec.unpack_from(data)
@@ -618,6 +651,8 @@ class SimulatedDrive:
             return self.statusword
         if index == 0x6064:
             return self.position_counts
+        if index == 0x6062:
+            return self._length_to_counts(self._demand_m)
         if index == 0x2401:
             return self.load_cell_counts
         if index == 0x606C:
@@ -650,24 +685,26 @@ class SimulatedDrive:
             return
         if index == 0x6060:
             if value not in (MODE_CSP, MODE_HOMING):
-                raise SdoAbortedError(ABORT_VALUE_RANGE)
+                raise SdoAbortedError(SdoAbortCode.VALUE_RANGE)
             self._store[(0x6060, 0)] = value
             if self._store[(0x6061, 0)] != value:
                 self._store[(0x6061, 0)] = value
                 self._homing_attained = False
                 self._homing_error = False
                 self._cw_prev_homing_bit = bool(self._controlword & 0x10)
+                if value == MODE_CSP and self.state == State402.OPERATION_ENABLED:
+                    self._hold_actual_position()
             return
         if index == 0x1003:
             if sub == 0 and value == 0:
                 self._err_history.clear()
                 return
-            raise SdoAbortedError(ABORT_VALUE_RANGE)
+            raise SdoAbortedError(SdoAbortCode.VALUE_RANGE)
         if 0x1600 <= index <= 0x1603 or 0x1A00 <= index <= 0x1A03:
             self._check_mapping(index, sub, value)
         if index in (0x1400, 0x1401, 0x1402, 0x1403, 0x1800, 0x1801, 0x1802, 0x1803) and sub == 1:
             if value & 0x1FFFF800 and not value & 0x20000000:
-                raise SdoAbortedError(ABORT_VALUE_RANGE)
+                raise SdoAbortedError(SdoAbortCode.VALUE_RANGE)
         self._store[(index, sub)] = value
         if 0x1000 <= index <= 0x1FFF:
             self._rebuild_comm()
@@ -682,13 +719,13 @@ class SimulatedDrive:
         """CiA 301 §7.4.8.x: a mapping entry names a mappable object of its length; <= 64 bit."""
         if sub == 0:
             if value > 8:
-                raise SdoAbortedError(ABORT_VALUE_HIGH)
+                raise SdoAbortedError(SdoAbortCode.VALUE_HIGH)
             bits = 0
             for i in range(1, value + 1):
                 bits += self._store.get((index, i), 0) & 0xFF
                 self._check_entry(self._store.get((index, i), 0), rpdo=index < 0x1A00)
             if bits > 64:
-                raise SdoAbortedError(ABORT_PDO_LENGTH)
+                raise SdoAbortedError(SdoAbortCode.PDO_LENGTH)
         elif value:
             self._check_entry(value, rpdo=index < 0x1A00)
 
@@ -697,33 +734,33 @@ class SimulatedDrive:
         try:
             var = self._var(idx, sub)
         except SdoAbortedError:
-            raise SdoAbortedError(ABORT_NOT_MAPPABLE) from None
+            raise SdoAbortedError(SdoAbortCode.NOT_MAPPABLE) from None
         if not var.pdo_mappable or var.data_type not in _STRUCT_CODE or len(var) != bits \
                 or (rpdo and not var.writable) or (not rpdo and not var.readable):
-            raise SdoAbortedError(ABORT_NOT_MAPPABLE)
+            raise SdoAbortedError(SdoAbortCode.NOT_MAPPABLE)
 
     # SdoServer's node interface (CiA 301 §7.2.4; bytes in, bytes out)
     def get_data(self, index: int, subindex: int, check_readable: bool = False) -> bytes:
         var = self._var(index, subindex)
         if check_readable and not var.readable:
-            raise SdoAbortedError(0x06010001)
+            raise SdoAbortedError(SdoAbortCode.READ_WRITE_ONLY)
         return var.encode_raw(self._get(index, subindex))
 
     def set_data(self, index: int, subindex: int, data: bytes,
                  check_writable: bool = False) -> None:
         var = self._var(index, subindex)
         if check_writable and not var.writable:
-            raise SdoAbortedError(0x06010002)
+            raise SdoAbortedError(SdoAbortCode.WRITE_READ_ONLY)
         if var.data_type in odmod.NUMBER_TYPES and 8 * len(data) != len(var):
-            raise SdoAbortedError(0x06070010)
+            raise SdoAbortedError(SdoAbortCode.LENGTH_MISMATCH)
         value = var.decode_raw(bytes(data))
         if not isinstance(value, int):
             self._store[(index, subindex)] = value
             return
         if var.min is not None and value < var.min:
-            raise SdoAbortedError(0x06090032)
+            raise SdoAbortedError(SdoAbortCode.VALUE_LOW)
         if var.max is not None and value > var.max:
-            raise SdoAbortedError(ABORT_VALUE_HIGH)
+            raise SdoAbortedError(SdoAbortCode.VALUE_HIGH)
         self._put(index, subindex, int(value))
 
     # ------------------------------------------------------------------ CiA 402 device control
@@ -735,6 +772,7 @@ class SimulatedDrive:
         self.state = state
         if entering_enabled:
             self._fe_time_s = 0.0
+            self._hold_actual_position()
         if state not in (State402.OPERATION_ENABLED, State402.QUICK_STOP_ACTIVE,
                          State402.FAULT_REACTION_ACTIVE):
             self.velocity_mps = 0.0     # motor disabled; the lead screw holds
@@ -869,10 +907,15 @@ class SimulatedDrive:
 
     # ------------------------------------------------------------------ motion (CSP)
 
+    def _length_to_counts(self, length_m: float) -> int:
+        """The (homed) encoder count a length falls in."""
+        return math.floor(length_m * self._cpm) - self._enc_zero + self._home_shift
+
     def _true_position_counts(self) -> int:
-        return math.floor(self.length_m * self._cpm) - self._enc_zero + self._home_shift
+        return self._length_to_counts(self.length_m)
 
     def _counts_to_length(self, counts: int) -> float:
+        """The length at the centre of an encoder count (what the drive's loop aims at)."""
         return (counts - self._home_shift + self._enc_zero + 0.5) / self._cpm
 
     def _target_in_limits(self) -> bool:
@@ -881,60 +924,179 @@ class SimulatedDrive:
             return True
         return lo <= self._target <= hi
 
+    def _hold_actual_position(self) -> None:
+        """Entering CSP control: the reference, 607Ah and 60B1h take the actual position
+        and zero velocity offset (no jump, whatever a stale 607Ah held)."""
+        self._target = self._true_position_counts()
+        here = self._counts_to_length(self._target)
+        self._seg_from_m = self._seg_to_m = self._demand_m = here
+        self._vff_from = self._vff_to = 0.0
+        self._seg_t = 0.0
+        self._store[(0x60B1, 0)] = 0
+
+    def _start_segment(self) -> None:
+        """SYNC in CSP: the reference runs from the previous target and velocity offset to
+        the ones just latched (607Ah, 60B1h), linearly over the interpolation period 60C2h
+        (``value x 10^index`` s; 0 s: the reference steps to the target)."""
+        self._seg_from_m = self._seg_to_m
+        self._vff_from = self._vff_to
+        self._seg_to_m = self._counts_to_length(self._target)
+        self._vff_to = self._store[(0x60B1, 0)] / self._cpm
+        self._seg_t = 0.0
+        self._seg_period_s = self._store[(0x60C2, 1)] * 10.0 ** self._store[(0x60C2, 2)]
+
+    def _csp_step(self, dt: float) -> None:
+        """Advance the actuator ``dt`` seconds under the CSP position loop.
+
+        Reference over the segment (see :meth:`_start_segment`), ``s = min(1, t / T_ip)``:
+        ``r(t) = r_prev + (r_new - r_prev) s``, ``v_ff(t) = v_prev + (v_new - v_prev) s``.
+        Position loop on the encoder reading ``x_m`` (centre of its count), error
+        ``e = r - x_m``::
+
+            v_cmd = v_ff + Kp e                                   |e| <= e_lin
+            v_cmd = v_ff + sign(e) sqrt(2 a_b (|e| - e_lin / 2))  |e| >  e_lin
+
+        with ``Kp = 2 pi bandwidth``, ``a_b = 0.9 a_max``, ``e_lin = a_b / Kp^2`` (the two
+        branches meet with equal value and slope; the square-root branch is the speed
+        from which braking at ``a_b`` stops at ``e_lin / 2`` before the reference, so a
+        step of the target is closed without overshoot). The motor: ``|v| <= min(
+        max_velocity, 607Fh)``, ``|dv/dt| <= max_acceleration``; explicit Euler in ``n``
+        sub-steps ``h = dt / n`` with ``Kp h <= 0.2``, the error at the sub-step's start and
+        ``v_ff`` at its midpoint (so the linear loop ``x' = v_ff + Kp (r - x)`` tracks a ramp
+        ``r = v t`` with the lag ``v / Kp`` of its continuous solution, and a parabola
+        with feed-forward without the Euler lag ``a h / (2 Kp)`` of a start-point ``v_ff``).
+        Plain floats: this runs for every drive at every SYNC. At rest on the reference (the
+        drive holding, every SYNC while the brace is still) the error is exactly 0 in every
+        sub-step, so the loop commands ``v = 0`` and leaves ``x`` where it is; only its clock
+        advances: that case skips the loop (:meth:`_csp_loop`) with the very same result.
+        """
+        lim = self.limits
+        cpm = self._cpm
+        x = self.length_m
+        r1 = self._seg_to_m
+        if (self.velocity_mps == 0.0 and self._vff_from == 0.0 and self._vff_to == 0.0
+                and self._seg_from_m == r1 and lim.stroke_min < x < lim.stroke_max
+                and lim.max_acceleration >= 0.0 and (math.floor(x * cpm) + 0.5) / cpm == r1
+                and min(lim.max_velocity, self._store[(0x607F, 0)] / cpm) >= 0.0):
+            # e = r - x_m = 0: v_cmd = v_ff + Kp e = 0, within every clamp; x += 0 * h
+            n = max(1, math.ceil(dt * self.kp / _MAX_KP_H))
+            h = dt / n
+            t = self._seg_t
+            for _ in range(n):
+                t += h
+            self._seg_t = t
+            self.length_m = x + 0.0          # the loop's x += 0.0 (only a -0.0 would change)
+            self.velocity_mps = 0.0
+            self._at_hard_stop = False
+            period = self._seg_period_s
+            r0 = self._seg_from_m
+            self._demand_m = r1 if t >= period else r0 + (r1 - r0) * (t / period)
+            return
+        self._csp_loop(dt)
+
+    def _csp_loop(self, dt: float) -> None:
+        """The sub-steps of :meth:`_csp_step` (its docstring has the equations)."""
+        lim = self.limits
+        cpm = self._cpm
+        kp = self.kp
+        amax = lim.max_acceleration
+        vmax = min(lim.max_velocity, self._store[(0x607F, 0)] / cpm)
+        a_b = _BRAKING_SHARE * amax
+        e_lin = a_b / (kp * kp)
+        n = max(1, math.ceil(dt * kp / _MAX_KP_H))
+        h = dt / n
+        dv = amax * h
+        period = self._seg_period_s
+        t = self._seg_t
+        r0, r1 = self._seg_from_m, self._seg_to_m
+        g0, g1 = self._vff_from, self._vff_to
+        dr, dg = r1 - r0, g1 - g0
+        x, v = self.length_m, self.velocity_mps
+        lo, hi = lim.stroke_min, lim.stroke_max
+        stalled = self.stalled
+        floor, sqrt = math.floor, math.sqrt
+        hard = False
+        for _ in range(n):
+            # r exactly the target at the segment's end (no rounding residue at rest)
+            e = (r1 if t >= period else r0 + dr * (t / period)) - (floor(x * cpm) + 0.5) / cpm
+            if e > e_lin:
+                vc = sqrt(2.0 * a_b * (e - 0.5 * e_lin))
+            elif e < -e_lin:
+                vc = -sqrt(2.0 * a_b * (-e - 0.5 * e_lin))
+            else:
+                vc = kp * e
+            tm = t + 0.5 * h                 # feed-forward at the sub-step's midpoint
+            vc += g1 if tm >= period else g0 + dg * (tm / period)
+            if vc > vmax:
+                vc = vmax
+            elif vc < -vmax:
+                vc = -vmax
+            if vc > v + dv:
+                vc = v + dv
+            elif vc < v - dv:
+                vc = v - dv
+            v = 0.0 if stalled else vc
+            x += v * h
+            if x <= lo:
+                x, v, hard = lo, 0.0, True
+            elif x >= hi:
+                x, v, hard = hi, 0.0, True
+            t += h
+        self._seg_t = t
+        self.length_m = x
+        self.velocity_mps = v
+        self._at_hard_stop = hard
+        self._demand_m = r1 if t >= period else r0 + dr * (t / period)
+
     def _motion_step(self, dt: float) -> None:
-        """Advance the actuator by ``dt`` seconds with the setpoint latched at the last SYNC."""
+        """Advance the actuator by ``dt`` seconds: the CSP loop in OPERATION ENABLED, the
+        quick-stop / fault-reaction ramp, else nothing (the lead screw holds)."""
         self._last_sync_t = self._clock()
         if dt <= 0.0:
             return
-        lim = self.limits
         st = self.state
-        v = self.velocity_mps
-        amax = lim.max_acceleration
-        if st == State402.OPERATION_ENABLED and self._store[(0x6061, 0)] == MODE_CSP:
-            vmax = min(lim.max_velocity, self._store[(0x607F, 0)] / self._cpm)
+        csp = st == State402.OPERATION_ENABLED and self._store[(0x6061, 0)] == MODE_CSP
+        if csp:
             if not self._target_in_limits():
                 self._limit_active = True
                 self._enter_fault(EmcyCode.REFERENCE_LIMIT)
                 self._motion_step(dt)
                 return
             self._limit_active = False
-            # inside the target's encoder count: hold (a quantised position loop)
-            e = 0.0 if self._target == self._true_position_counts() else \
-                self._counts_to_length(self._target) - self.length_m
-            ae = abs(e)
-            # the fastest speed that still stops at the target with |a| <= amax in steps of dt
-            adt = amax * dt
-            v_brake = adt * (math.sqrt(0.25 + 2.0 * ae / (adt * dt)) - 0.5)
-            v_des = math.copysign(min(vmax, v_brake, ae / dt), e)
-            v_new = min(max(v_des, v - amax * dt), v + amax * dt)
-        elif st in (State402.QUICK_STOP_ACTIVE, State402.FAULT_REACTION_ACTIVE):
-            decel = max(self._store[(0x6085, 0)] / self._cpm, 1e-6)
-            if st == State402.QUICK_STOP_ACTIVE and self._store[(0x605A, 0)] in (1, 5):
-                decel = max(self._store[(0x6084, 0)] / self._cpm, 1e-6)
-            dv = decel * dt
-            v_new = 0.0 if abs(v) <= dv else v - math.copysign(dv, v)
-            if v_new == 0.0:
-                if st == State402.FAULT_REACTION_ACTIVE:
-                    self._set_state(State402.FAULT)
-                elif self._store[(0x605A, 0)] in (1, 2):
-                    self._set_state(State402.SWITCH_ON_DISABLED)
+            self._csp_step(dt)
         else:
-            v_new = 0.0
-        if self.stalled:
-            v_new = 0.0
-        length = self.length_m + v_new * dt if not self.stalled else self.length_m
-        self._at_hard_stop = False
-        if length <= lim.stroke_min:
-            length, v_new = lim.stroke_min, 0.0
-            self._at_hard_stop = True
-        elif length >= lim.stroke_max:
-            length, v_new = lim.stroke_max, 0.0
-            self._at_hard_stop = True
-        self.length_m = length
-        self.velocity_mps = v_new
-        # following error (6065h window, 6066h time out), CSP in OPERATION ENABLED only
+            v = self.velocity_mps
+            if st in (State402.QUICK_STOP_ACTIVE, State402.FAULT_REACTION_ACTIVE):
+                decel = max(self._store[(0x6085, 0)] / self._cpm, 1e-6)
+                if st == State402.QUICK_STOP_ACTIVE and self._store[(0x605A, 0)] in (1, 5):
+                    decel = max(self._store[(0x6084, 0)] / self._cpm, 1e-6)
+                dv = decel * dt
+                v_new = 0.0 if abs(v) <= dv else v - math.copysign(dv, v)
+                if v_new == 0.0:
+                    if st == State402.FAULT_REACTION_ACTIVE:
+                        self._set_state(State402.FAULT)
+                    elif self._store[(0x605A, 0)] in (1, 2):
+                        self._set_state(State402.SWITCH_ON_DISABLED)
+            else:
+                v_new = 0.0
+            if self.stalled:
+                v_new = 0.0
+            lim = self.limits
+            length = self.length_m + v_new * dt
+            self._at_hard_stop = False
+            if length <= lim.stroke_min:
+                length, v_new = lim.stroke_min, 0.0
+                self._at_hard_stop = True
+            elif length >= lim.stroke_max:
+                length, v_new = lim.stroke_max, 0.0
+                self._at_hard_stop = True
+            self.length_m = length
+            self.velocity_mps = v_new
+            self._demand_m = length
+        # following error (6065h window, 6066h time out) of the position demand 6062h,
+        # CSP in OPERATION ENABLED only
         if self.state == State402.OPERATION_ENABLED and self._store[(0x6061, 0)] == MODE_CSP:
-            self._fe_counts = self._target - self._true_position_counts()
+            self._fe_counts = self._length_to_counts(self._demand_m) - self._true_position_counts()
             if abs(self._fe_counts) > self._store[(0x6065, 0)]:
                 self._fe_time_s += dt
                 if self._fe_time_s * 1000.0 >= self._store[(0x6066, 0)]:

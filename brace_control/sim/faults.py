@@ -25,7 +25,8 @@ from typing import TYPE_CHECKING, Any
 
 import can
 
-from .drive import EmcyCode, SimulatedDrive
+from ..can.cia402 import EmcyCode
+from .drive import SimulatedDrive
 
 if TYPE_CHECKING:
     from .brace import SimulatedBrace

@@ -20,6 +20,7 @@ from typing import Any
 
 import can
 
+from ..can.frame import Frame
 from .drive import SimulatedDrive
 
 __all__ = ['SimBus', 'SyncHandler']
@@ -67,6 +68,12 @@ class SimBus:
         self.error_frames_seen = 0
         self.send_errors = 0
         self._sync_ids: frozenset[int] = frozenset({0x80})
+        #: the bus timestamp of the last SYNC frame (its sender's clock: python-can's
+        #: ``virtual`` interface stamps a frame with ``time.time()`` when it is sent)
+        self.last_sync_stamp = 0.0
+        #: COB-ID -> the drives that take it (RPDOs, SDO requests, the master heartbeat);
+        #: other frames (NMT, unknown) go to every drive. Rebuilt after NMT / SDO traffic.
+        self._routes: dict[int, tuple[SimulatedDrive, ...]] = {}
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -74,6 +81,7 @@ class SimBus:
         """Attach a drive (before :meth:`start`, or it is powered on at once)."""
         drive.attach(self._send)
         self.drives.append(drive)
+        self._refresh_routes()
         if self.bus is not None:
             drive.power_on()
             self._wake.set()
@@ -127,7 +135,7 @@ class SimBus:
         if bus is None or self.bus_off:
             return
         try:
-            bus.send(can.Message(arbitration_id=cob_id, data=data, is_extended_id=False))
+            bus.send(Frame(arbitration_id=cob_id, data=data, is_extended_id=False))
         except can.CanError as exc:    # a full queue or closed bus: the frame is lost
             self.send_errors += 1
             log.debug('sim send 0x%03X failed: %s', cob_id, exc)
@@ -147,16 +155,26 @@ class SimBus:
             return
         cob = msg.arbitration_id
         if cob in self._sync_ids:
+            self.last_sync_stamp = msg.timestamp
             self._on_sync()
             return
         data = bytes(msg.data)
         t = time.monotonic()
-        for d in self.drives:
+        for d in self._routes.get(cob, self.drives):
             d.on_frame(cob, data, t)
         if cob == 0 or 0x600 <= cob <= 0x67F:
-            # NMT or SDO may have changed 1005h/1006h/1017h: refresh and wake the timer
+            # NMT or SDO may have changed 1005h/1006h/1017h or a PDO mapping: refresh the
+            # routes and wake the timer
             self._sync_ids = frozenset(d.sync_cob_id for d in self.drives) or frozenset({0x80})
+            self._refresh_routes()
             self._wake.set()
+
+    def _refresh_routes(self) -> None:
+        routes: dict[int, list[SimulatedDrive]] = {}
+        for d in self.drives:
+            for cob in d.listens_to():
+                routes.setdefault(cob, []).append(d)
+        self._routes = {cob: tuple(ds) for cob, ds in routes.items() if cob != 0}
 
     def _on_sync(self) -> None:
         now = time.monotonic()

@@ -10,22 +10,28 @@
 * :class:`LogCosh`: the shoulder thesis's log-cosh S-curve (seed 004), exact at both ends.
 * :func:`plan_motion`: a profile checked along its path against a mechanism
   (:mod:`.limits`), slowed down or rejected with the reason.
+* :class:`KnotTrajectory`, :func:`knots_of`: a motion as knots (quintic Hermite), the way it
+  travels between the nodes; :func:`actuator_knots`: the same in actuator coordinates.
 * :class:`TrajectoryRunner`: goals, preemption, cancel and status, for the node.
 """
+from .actuator import ACTUATOR_TOLERANCE, UnreachableKnot, actuator_knots
 from .base import MotionState, PiecewisePolynomial, Trajectory, TrajectoryError
-from .limits import Limits, PathCheck, Violation, check_path, check_pose
+from .hermite import KnotTrajectory
+from .knots import knots_of, refine
+from .limits import Limits, PathCheck, Violation, check_capacity, check_path, check_pose
 from .logcosh import LogCosh
 from .minimum_jerk import FittsLaw, MinimumJerk, ViaPointMinimumJerk, brake, fitts_duration
 from .planner import Plan, PlanRejected, Profile, plan_motion
 from .poses import PoseError, arrival_times
-from .runner import GoalEvent, GoalRequest, GoalState, LatePlan, StartState, TrajectoryRunner
+from .runner import GoalEvent, GoalRequest, GoalState, StartState, TrajectoryRunner
 from .scurve import SCurve
 
 __all__ = [
-    'Trajectory', 'PiecewisePolynomial', 'MotionState', 'TrajectoryError',
+    'Trajectory', 'PiecewisePolynomial', 'MotionState', 'TrajectoryError', 'KnotTrajectory',
+    'knots_of', 'refine', 'actuator_knots', 'ACTUATOR_TOLERANCE', 'UnreachableKnot',
     'MinimumJerk', 'ViaPointMinimumJerk', 'SCurve', 'LogCosh', 'fitts_duration', 'FittsLaw',
-    'brake', 'Limits', 'Violation', 'PathCheck', 'check_path', 'check_pose',
+    'brake', 'Limits', 'Violation', 'PathCheck', 'check_path', 'check_pose', 'check_capacity',
     'Profile', 'Plan', 'PlanRejected', 'plan_motion',
-    'GoalState', 'GoalRequest', 'GoalEvent', 'StartState', 'TrajectoryRunner', 'LatePlan',
+    'GoalState', 'GoalRequest', 'GoalEvent', 'StartState', 'TrajectoryRunner',
     'PoseError', 'arrival_times',
 ]

@@ -119,9 +119,10 @@ def quintic_coefficients(p0: np.ndarray, v0: np.ndarray, a0: np.ndarray,
 
     Meets position, velocity and acceleration at both ends. With ``v = a = 0`` at both
     ends this is the Flash–Hogan straight minimum-jerk motion, eqs. (2.2)–(2.3):
-    ``b = (x_f - x_0)(0, 0, 0, 10, -15, 6)``.
+    ``b = (x_f - x_0)(0, 0, 0, 10, -15, 6)``. ``duration`` may be an array that broadcasts
+    against the states (one duration per segment, shape (m, 1)).
     """
-    T = float(duration)
+    T = np.asarray(duration, dtype=float)
     h = p1 - p0
     V0, V1 = v0 * T, v1 * T            # velocities in sigma units
     A0, A1 = a0 * T * T, a1 * T * T

@@ -17,12 +17,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..mechanisms.base import SingularPose
 from .base import Trajectory
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..mechanisms.base import Mechanism
 
-__all__ = ['Limits', 'Violation', 'PathCheck', 'check_path', 'check_pose']
+__all__ = ['Limits', 'Violation', 'PathCheck', 'check_path', 'check_pose', 'check_capacity']
 
 
 @dataclass(frozen=True)
@@ -36,6 +37,14 @@ class Limits:
     :param actuator_max_acceleration: actuator acceleration limit, or ``None`` to skip.
     :param singularity_condition_max: cond(J) above this counts as singular.
     :param samples: samples of the path checked (``trajectory.path_check_samples``).
+    :param limit_margin: share of the actuator speed and acceleration limits a plan may use
+        (``trajectory.limit_margin``): the fastest axis never runs at the drives' saturation,
+        which leaves room for splicing a new motion and for the drives' position loop.
+    :param force_limits: the actuators' effort limits (``actuator.max_force``) for the wrench
+        capacity along a path.
+    :param min_wrench_capacity: the smallest capacity per wrench axis a path may pass
+        (``trajectory.min_wrench_capacity``, in the mechanism's ``wrench_axes``); ``None``
+        or all zero: not checked.
     """
 
     max_velocity: np.ndarray
@@ -45,6 +54,9 @@ class Limits:
     actuator_max_acceleration: np.ndarray | float | None = None
     singularity_condition_max: float = 1e4
     samples: int = 200
+    limit_margin: float = 1.0
+    force_limits: float | np.ndarray | None = None
+    min_wrench_capacity: np.ndarray | None = None
 
     @classmethod
     def from_config(cls, cfg: dict, *, dof: int | None = None) -> 'Limits':
@@ -72,7 +84,19 @@ class Limits:
                    actuator_max_acceleration=(None if act.get('max_acceleration') is None
                                               else float(act['max_acceleration'])),
                    singularity_condition_max=float(mech.get('singularity_condition_max', 1e4)),
-                   samples=int(traj.get('path_check_samples', 200)))
+                   samples=int(traj.get('path_check_samples', 200)),
+                   limit_margin=float(traj.get('limit_margin', 0.8)),
+                   force_limits=float(act.get('max_force', 250.0)),
+                   min_wrench_capacity=_capacity(traj.get('min_wrench_capacity')))
+
+
+def _capacity(value) -> np.ndarray | None:
+    if value is None:
+        return None
+    arr = np.asarray(value, dtype=float).reshape(-1)
+    if not np.all(np.isfinite(arr)) or np.any(arr < 0.0):
+        raise ValueError(f'trajectory.min_wrench_capacity must be finite and >= 0, got {arr.tolist()}')
+    return None if not np.any(arr > 0.0) else arr
 
 
 class Violation(enum.Enum):
@@ -83,6 +107,7 @@ class Violation(enum.Enum):
     STROKE = 'stroke'                  # inverse kinematics: actuator outside its range
     WORKSPACE = 'workspace'            # mechanism.in_workspace is False
     SINGULARITY = 'singularity'        # cond(J) too high, or det(J) changes sign
+    CAPACITY = 'capacity'              # the actuators cannot hold the minimum wrench there
     ACTUATOR_SPEED = 'actuator_speed'
     ACTUATOR_ACCELERATION = 'actuator_acceleration'
 
@@ -123,7 +148,7 @@ def check_pose(mech: 'Mechanism', pose: np.ndarray, *, condition_max: float) -> 
     try:
         q = np.asarray(mech.inverse(pose), dtype=float)
     except ValueError as exc:       # UnreachablePose (and SingularPose) are ValueErrors
-        kind = Violation.SINGULARITY if type(exc).__name__ == 'SingularPose' else Violation.STROKE
+        kind = Violation.SINGULARITY if isinstance(exc, SingularPose) else Violation.STROKE
         return PathCheck(kind, f'pose {_fmt(pose)} is unreachable: {exc}')
     J = np.asarray(mech.jacobian(pose), dtype=float)
     cond = float(np.linalg.cond(J)) if np.all(np.isfinite(J)) else np.inf
@@ -135,75 +160,87 @@ def check_pose(mech: 'Mechanism', pose: np.ndarray, *, condition_max: float) -> 
     return PathCheck(q=q, jacobian=J)
 
 
+def _first_unreachable(mech: 'Mechanism', pose: np.ndarray) -> PathCheck:
+    """Why ``pose`` has no inverse kinematics (the mechanism's own message)."""
+    try:
+        mech.inverse(pose)
+    except ValueError as exc:       # UnreachablePose (and SingularPose) are ValueErrors
+        kind = Violation.SINGULARITY if isinstance(exc, SingularPose) else Violation.STROKE
+        return PathCheck(kind, f'pose {_fmt(pose)} is unreachable: {exc}')
+    return PathCheck(Violation.STROKE, f'pose {_fmt(pose)} is unreachable')
+
+
+def _in_workspace(mech: 'Mechanism', P: np.ndarray) -> np.ndarray:
+    batch = getattr(mech, 'in_workspace_batch', None)
+    if callable(batch):
+        return np.asarray(batch(P), dtype=bool)
+    return np.array([bool(mech.in_workspace(p)) for p in P])
+
+
 def check_path(mech: 'Mechanism', trajectory: Trajectory, limits: Limits, *,
                samples: int | None = None) -> PathCheck:
     """Check ``trajectory`` against ``mech`` on ``samples`` (default ``limits.samples``) instants.
 
-    The first geometric violation (stroke, workspace, singularity) found in time order is
-    returned with its reason and time; otherwise the speed and acceleration ratios are
-    filled in and the violation is ``ACTUATOR_SPEED`` / ``ACTUATOR_ACCELERATION`` if a
-    ratio exceeds 1 (speed reported first).
+    Vectorised over the samples (``mech.inverse_batch`` / ``jacobian_batch``). The first
+    geometric violation (stroke, workspace, singularity) found in time order is returned
+    with its reason and time; otherwise the speed and acceleration ratios (against
+    ``limit_margin`` times the actuator limits) are filled in and the violation is
+    ``ACTUATOR_SPEED`` / ``ACTUATOR_ACCELERATION`` if a ratio exceeds 1 (speed first).
     """
     n = max(int(samples or limits.samples), 2)
     T = trajectory.duration
     ts = np.linspace(0.0, T, n)
     P, V, _ = trajectory.sample_many(ts)
     names = tuple(getattr(mech, 'actuator_names', ()))
-    qs, jacs = [], []
-    first: PathCheck | None = None          # first stroke / workspace / non-finite failure
-    for t, pose in zip(ts, P):
-        if not np.all(np.isfinite(pose)):
-            first = PathCheck(Violation.NON_FINITE, f'pose {pose.tolist()} is not finite')
-        else:
-            try:
-                q = np.asarray(mech.inverse(pose), dtype=float)
-            except ValueError as exc:   # UnreachablePose (and SingularPose) are ValueErrors
-                kind = (Violation.SINGULARITY if type(exc).__name__ == 'SingularPose'
-                        else Violation.STROKE)
-                first = PathCheck(kind, f'pose {_fmt(pose)} is unreachable: {exc}')
-            else:
-                if not mech.in_workspace(pose):
-                    first = PathCheck(Violation.WORKSPACE, f'pose {_fmt(pose)} is outside the workspace')
-                    # a pose out of the workspace because it is singular is reported as such
-                    jacs.append(np.asarray(mech.jacobian(pose), dtype=float))
-        if first is not None:
-            first.time = float(t)
-            first.reason = f'at t = {t:.3f} s: {first.reason}'
-            break
-        qs.append(q)
-        jacs.append(np.asarray(mech.jacobian(pose), dtype=float))
-    k = len(jacs)
-    # singularities among the poses checked so far (batched: one SVD / det call)
-    if k:
-        J = np.asarray(jacs)
-        cond = np.linalg.cond(J) if np.all(np.isfinite(J)) else np.full(k, np.inf)
+    finite = np.all(np.isfinite(P), axis=1)
+    Q = np.asarray(mech.inverse_batch(np.where(finite[:, None], P, 0.0)), dtype=float)
+    reachable = finite & np.all(np.isfinite(Q), axis=1)
+    k = int(np.argmin(reachable)) if not np.all(reachable) else n    # first unreachable
+    J = np.asarray(mech.jacobian_batch(P[:k]), dtype=float) if k else np.zeros((0, 1, 1))
+    outside = ~_in_workspace(mech, P[:k]) if k else np.zeros(0, dtype=bool)
+    k_ws = int(np.argmax(outside)) if np.any(outside) else k         # first outside the workspace
+    # singularities up to there (batched: one SVD / det call); a pose outside the
+    # workspace because it is singular is reported as singular
+    m = min(k_ws + 1, k)
+    i_sing = m
+    reason = ''
+    if m:
+        Jm = J[:m]
+        cond = np.linalg.cond(Jm) if np.all(np.isfinite(Jm)) else np.full(m, np.inf)
         bad = np.flatnonzero(~(cond <= limits.singularity_condition_max))
         crossing = np.array([], dtype=int)
-        if J.shape[1] == J.shape[2]:
-            det = np.linalg.det(J)
+        if Jm.shape[1] == Jm.shape[2]:
+            det = np.linalg.det(Jm)
             crossing = np.flatnonzero(det[1:] * det[:-1] < 0.0) + 1
-        i_bad = int(bad[0]) if bad.size else k
-        i_cross = int(crossing[0]) if crossing.size else k
-        if min(i_bad, i_cross) < k:             # at or before the first other failure
-            i = min(i_bad, i_cross)
-            if i == i_bad:
-                reason = (f'pose {_fmt(P[i])} is singular: cond(J) = {cond[i]:.3g} > '
-                          f'{limits.singularity_condition_max:.3g}')
-            else:
-                reason = f'the path crosses a singularity (det J changes sign before pose {_fmt(P[i])})'
-            return PathCheck(Violation.SINGULARITY, f'at t = {ts[i]:.3f} s: {reason}', time=float(ts[i]))
-    if first is not None:
+        i_bad = int(bad[0]) if bad.size else m
+        i_cross = int(crossing[0]) if crossing.size else m
+        i_sing = min(i_bad, i_cross)
+        if i_sing < m:
+            reason = (f'pose {_fmt(P[i_sing])} is singular: cond(J) = {cond[i_sing]:.3g} > '
+                      f'{limits.singularity_condition_max:.3g}' if i_sing == i_bad else
+                      f'the path crosses a singularity (det J changes sign before pose {_fmt(P[i_sing])})')
+    if i_sing < m:
+        return PathCheck(Violation.SINGULARITY, f'at t = {ts[i_sing]:.3f} s: {reason}',
+                         time=float(ts[i_sing]))
+    if k_ws < k or k < n:
+        i = min(k_ws, k)
+        first = (PathCheck(Violation.WORKSPACE, f'pose {_fmt(P[i])} is outside the workspace')
+                 if k_ws < k else
+                 PathCheck(Violation.NON_FINITE, f'pose {P[i].tolist()} is not finite')
+                 if not finite[i] else _first_unreachable(mech, P[i]))
+        first.time = float(ts[i])
+        first.reason = f'at t = {ts[i]:.3f} s: {first.reason}'
         return first
-    qdots = [Ji @ vel for Ji, vel in zip(jacs, V)]
-    qdot = np.asarray(qdots)
-    vmax = np.broadcast_to(np.asarray(limits.actuator_max_velocity, dtype=float), qdot.shape[1:])
+    qdot = np.einsum('kij,kj->ki', J, V)
+    margin = float(limits.limit_margin)
+    vmax = margin * np.broadcast_to(np.asarray(limits.actuator_max_velocity, dtype=float), qdot.shape[1:])
     speed = np.abs(qdot) / vmax
-    check = PathCheck(q=np.asarray(qs))
+    check = PathCheck(q=Q)
     check.speed_ratio = float(speed.max()) if speed.size else 0.0
     if limits.actuator_max_acceleration is not None and n >= 3 and T > 0:
         qddot = np.gradient(qdot, ts, axis=0)
-        amax = np.broadcast_to(np.asarray(limits.actuator_max_acceleration, dtype=float),
-                               qdot.shape[1:])
+        amax = margin * np.broadcast_to(np.asarray(limits.actuator_max_acceleration, dtype=float),
+                                        qdot.shape[1:])
         acc = np.abs(qddot) / amax
         check.acceleration_ratio = float(acc.max()) if acc.size else 0.0
     if check.speed_ratio > 1.0 + 1e-9:
@@ -212,9 +249,45 @@ def check_path(mech: 'Mechanism', trajectory: Trajectory, limits: Limits, *,
         check.violation = Violation.ACTUATOR_SPEED
         check.time = float(ts[i])
         check.reason = (f'actuator {name} would move at {abs(qdot[i, j]):.4f}/s at t = {ts[i]:.3f} s, '
-                        f'limit {vmax[j]:.4f}/s')
+                        f'limit {vmax[j]:.4f}/s ({margin:g} x its speed limit)')
     elif check.acceleration_ratio > 1.0 + 1e-9:
         check.violation = Violation.ACTUATOR_ACCELERATION
         check.reason = (f'actuator acceleration {check.acceleration_ratio:.3f} x the limit '
-                        f'{np.max(np.asarray(limits.actuator_max_acceleration)):.4f}/s^2')
+                        f'{margin * np.max(np.asarray(limits.actuator_max_acceleration)):.4f}/s^2 '
+                        f'({margin:g} x the actuators\' limit)')
     return check
+
+
+def check_capacity(mech: 'Mechanism', trajectory: Trajectory, limits: Limits, *,
+                   samples: int | None = None) -> tuple[PathCheck, np.ndarray | None]:
+    """The path's minimum wrench capacity per axis (SAFETY.md 17) against
+    ``limits.min_wrench_capacity``: ``(check, minima)``; ``minima`` is ``None`` when the
+    mechanism has no capacity model or nothing is checked.
+
+    A violation names the axis, the capacity, the pose, the time and the limiting actuator.
+    """
+    batch = getattr(mech, 'wrench_capacity_batch', None)
+    if limits.force_limits is None or not callable(batch):
+        return PathCheck(), None
+    n = max(int(samples or limits.samples), 2)
+    ts = np.linspace(0.0, trajectory.duration, n)
+    P = trajectory.sample_many(ts)[0]
+    caps, limiting = batch(P, limits.force_limits, return_limiting=True)
+    caps = np.asarray(caps, dtype=float)
+    minima = np.nanmin(caps, axis=0)
+    need = limits.min_wrench_capacity
+    if need is None:
+        return PathCheck(), minima
+    axes = tuple(getattr(mech, 'wrench_axes', ())) or tuple(f'#{j}' for j in range(caps.shape[1]))
+    need = np.broadcast_to(need, (caps.shape[1],)) if need.size in (1, caps.shape[1]) else need[:caps.shape[1]]
+    short = caps < need[None, :]
+    if not np.any(short):
+        return PathCheck(), minima
+    i, j = np.argwhere(short)[0]
+    names = tuple(getattr(mech, 'actuator_names', ()))
+    who = int(limiting[i, j])
+    by = f', limited by actuator {names[who]}' if 0 <= who < len(names) else ''
+    return PathCheck(Violation.CAPACITY,
+                     f'at t = {ts[i]:.3f} s the wrench capacity along {axes[j]} is {caps[i, j]:.3g} '
+                     f'< trajectory.min_wrench_capacity {need[j]:.3g} at pose {_fmt(P[i])}{by}',
+                     time=float(ts[i])), minima

@@ -14,6 +14,7 @@ Upper-limb trainer thesis (seed 002), §2.3:
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -83,47 +84,65 @@ def solve_via_quintics(points: np.ndarray, durations: np.ndarray, *,
     v0 = np.zeros(dim) if v0 is None else v0
     a0 = np.zeros(dim) if a0 is None else a0
     N = 6 * m
-    A = np.zeros((N, N))
+    rows: list[int] = []
+    cols: list[int] = []
+    vals: list[float] = []
     rhs = np.zeros((N, dim))
     row = 0
     fall = [[math.perm(j, k) for j in range(6)] for k in range(6)]   # d^k sigma^j at sigma=1
 
-    def col(seg: int, j: int) -> int:
-        return 6 * seg + j
+    def put(c: int, value: float) -> None:
+        rows.append(row)
+        cols.append(c)
+        vals.append(value)
 
     # start: p, v, a
     h0 = durations[0]
     for k, val in enumerate((points[0], v0 * h0, a0 * h0 * h0)):
-        A[row, col(0, k)] = math.factorial(k)
+        put(k, math.factorial(k))
         rhs[row] = val
         row += 1
     for i in range(m - 1):
         hi, hn = durations[i], durations[i + 1]
         # end of segment i at the via point, start of segment i+1 at the via point
-        A[row, [col(i, j) for j in range(6)]] = 1.0
+        for j in range(6):
+            put(6 * i + j, 1.0)
         rhs[row] = points[i + 1]
         row += 1
-        A[row, col(i + 1, 0)] = 1.0
+        put(6 * (i + 1), 1.0)
         rhs[row] = points[i + 1]
         row += 1
         # derivatives 1..4 continuous: (d^k seg_i at 1) / hi^k = (k! b_{i+1,k}) / hn^k
         for k in range(1, 5):
             for j in range(k, 6):
-                A[row, col(i, j)] = fall[k][j] / hi ** k
-            A[row, col(i + 1, k)] = -math.factorial(k) / hn ** k
+                put(6 * i + j, fall[k][j] / hi ** k)
+            put(6 * (i + 1) + k, -math.factorial(k) / hn ** k)
             row += 1
     # goal: p, v = a = 0
     last = m - 1
     for k in range(3):
         for j in range(k, 6):
-            A[row, col(last, j)] = fall[k][j]
+            put(6 * last + j, fall[k][j])
         rhs[row] = points[-1] if k == 0 else 0.0
         row += 1
-    try:
-        sol = np.linalg.solve(A, rhs)
-    except np.linalg.LinAlgError as exc:
-        raise TrajectoryError(f'via-point system is singular for segment durations {durations}') from exc
+    # a band matrix (each row touches two neighbouring segments): a sparse LU solves it in
+    # O(m), so a path of many poses costs in proportion to their number
+    from scipy.sparse import csc_matrix
+    from scipy.sparse.linalg import MatrixRankWarning, spsolve
+    A = csc_matrix((vals, (rows, cols)), shape=(N, N))
+    with warnings.catch_warnings():
+        warnings.simplefilter('error', MatrixRankWarning)
+        try:
+            sol = np.asarray(spsolve(A, rhs)).reshape(N, dim)
+        except (MatrixRankWarning, RuntimeError) as exc:
+            raise TrajectoryError(f'via-point system is singular for segment durations {durations}') from exc
+    if not np.all(np.isfinite(sol)):
+        raise TrajectoryError(f'via-point system is singular for segment durations {durations}')
     return sol.reshape(m, 6, dim)
+
+
+#: via points beyond this many get chord-length times instead of optimised ones
+MAX_OPTIMISED_VIA = 8
 
 
 class ViaPointMinimumJerk(PiecewisePolynomial):
@@ -206,6 +225,10 @@ class ViaPointMinimumJerk(PiecewisePolynomial):
 
         # several via points: segment fractions = softmax(z); start from chord lengths
         chords = np.linalg.norm(np.diff(pts, axis=0), axis=1) + 1e-9 * T
+        if k > MAX_OPTIMISED_VIA:
+            # a long path: times in proportion to the chord lengths (O(k)); optimising k
+            # times by simplex search would cost O(k^2) solves
+            return np.cumsum(chords / chords.sum() * T)[:-1]
         z0 = np.log(chords / chords.sum())
 
         def fractions(z: np.ndarray) -> np.ndarray:

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .base import ArrayLike, Trajectory, TrajectoryError, as_points
-from .limits import Limits, PathCheck, Violation, check_path, check_pose
+from .limits import Limits, PathCheck, Violation, check_capacity, check_path, check_pose
 from .logcosh import LogCosh
 from .minimum_jerk import FittsLaw, MinimumJerk, ViaPointMinimumJerk
 from .scurve import SCurve
@@ -58,6 +58,8 @@ class Plan:
     check: PathCheck
     stretch: float = 1.0
     notes: list[str] = field(default_factory=list)
+    #: numbers for the goal's status (e.g. the path's minimum wrench capacity)
+    values: dict = field(default_factory=dict)
 
     @property
     def duration(self) -> float:
@@ -170,9 +172,14 @@ def plan_motion(mech: 'Mechanism', start: ArrayLike, goal: ArrayLike, profile: P
                                f'(more than {MAX_DURATION_S:.0f} s) to respect the limits')
         check = check_path(mech, traj, limits)
         if check.ok:
+            capacity, minima = check_capacity(mech, traj, limits)
+            if not capacity.ok:
+                raise PlanRejected(f'path rejected {capacity.reason}', capacity.violation)
             if stretch > 1.0 or scale > 1.0:
                 notes.append(f'slowed down x{max(stretch, scale):.3f} for the actuator limits')
-            return Plan(traj, profile, check, max(stretch, scale), notes)
+            values = {} if minima is None else {
+                'min_wrench_capacity': ' '.join(f'{c:.4g}' for c in minima)}
+            return Plan(traj, profile, check, max(stretch, scale), notes, values)
         if not check.violation.fixable_by_slowing:
             raise PlanRejected(f'path rejected {check.reason}', check.violation)
         factor = max(check.speed_ratio, math.sqrt(max(check.acceleration_ratio, 0.0)), 1.0) * 1.02

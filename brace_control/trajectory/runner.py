@@ -1,40 +1,50 @@
-"""Goals in, setpoints out: the trajectory node's logic, without ROS.
+"""Goals in, planned motions out, honest outcomes back: the trajectory node's logic, without ROS.
 
-:class:`TrajectoryRunner` keeps the motion being executed, starts each new goal from
-where the brace is (continuing the running motion's position, velocity and
-acceleration, so a preemption is smooth), brakes to rest on cancel or abort, and
-reports each goal's end exactly once (:class:`GoalState`). Time is whatever monotonic
-clock the caller passes (s).
+:class:`TrajectoryRunner` plans each goal from the state the commanded motion will have
+when the new motion takes over (``lookahead`` from now: continuous position, velocity and
+acceleration), hands the whole motion out once (the node publishes it; the driver samples
+it in its SYNC loop), and decides how each goal ends from what the rest of the stack
+reports (SAFETY.md 12, 16):
 
-Planning takes time, so a new motion is planned from the state the running motion will
-have ``lookahead`` seconds from now and takes over exactly then: the switch is continuous
-in position, velocity and acceleration as long as planning finishes within
-``lookahead`` (a late plan still switches, at the state it was planned from, and says so).
+* **succeeded** only when the driver reported the motion finished, the drives were enabled
+  all along, and the estimated platform pose (load aware) came within ``pose_tolerance``
+  of the goal within ``settle_time`` after that;
+* **aborted** when the driver rejected or stopped the motion (halt, disable, protective
+  stop: the reason is the driver's), when the drives left the enabled state, when the
+  ring did not follow (the estimate stayed off the goal: by how much, per coordinate), or
+  when no report came in time;
+* **cancelled** when a newer goal preempted it or a cancel was requested;
+* **rejected** before anything moves when it cannot be planned within the limits, or
+  while the drives are not enabled.
 
-Not thread-safe: the node serialises calls (its lock); :meth:`plan` needs no lock.
+Its model of the command: the motion it last handed out (sampled on its own clock), or
+the pose the command holds. After the driver re-anchors (enable) or stops a motion early
+(cancel, halt, fault), the hold is the forward kinematics of the positions the driver
+reports, so the next motion starts exactly where the drives are commanded. While a
+cancelled motion is still braking the model is unknown (:attr:`settled` is False) and no
+new motion is planned from it.
+
+Time is whatever monotonic clock the caller passes (s). Not thread-safe: the node
+serialises calls (its lock); :meth:`plan` needs no lock.
 """
 from __future__ import annotations
 
 import enum
-from collections import deque
+import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .base import MotionState, Trajectory
-from .limits import Limits, check_path
-from .minimum_jerk import FittsLaw, brake
-from .planner import Plan, PlanRejected, Profile, plan_motion
+from .limits import Limits
+from .minimum_jerk import FittsLaw
+from .planner import Plan, Profile, plan_motion
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..mechanisms.base import Mechanism
 
-__all__ = ['GoalState', 'GoalRequest', 'GoalEvent', 'StartState', 'TrajectoryRunner', 'LatePlan']
-
-
-class LatePlan(RuntimeError):
-    """A plan for a moving brace finished after its takeover time: plan again."""
+__all__ = ['GoalState', 'GoalRequest', 'GoalEvent', 'StartState', 'TrajectoryRunner']
 
 
 class GoalState(str, enum.Enum):
@@ -69,7 +79,8 @@ class GoalRequest:
 
 @dataclass(frozen=True)
 class GoalEvent:
-    """One status report: ``reason`` is empty for plain successes."""
+    """One status report: ``reason`` is empty for plain successes; ``values`` adds numbers
+    (e.g. the final error, the path's minimum wrench capacity)."""
 
     goal_id: str
     state: GoalState
@@ -77,6 +88,7 @@ class GoalEvent:
     target: np.ndarray | None = None
     duration: float | None = None
     profile: str = ''
+    values: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -85,100 +97,116 @@ class StartState:
 
     t0: float
     state: MotionState
-    source: str                      # 'motion', 'measured', 'setpoint' or 'home'
+    source: str                      # 'motion', 'hold', 'measured' or 'home'
 
 
 @dataclass
 class _Motion:
     t0: float
     trajectory: Trajectory
-    goal_id: str | None             # None: a brake (cancel/abort) that belongs to no goal
-    target: np.ndarray | None = None
-    notes: list[str] = field(default_factory=list)
+    tag: int                         # the stamp it was handed out with (ns)
+
+
+@dataclass
+class _Goal:
+    goal_id: str
+    target: np.ndarray
+    tag: int
+    duration: float
+    profile: str
+    started: bool = False
+    finished_at: float | None = None      # when the driver reported the motion finished
+    best_error: np.ndarray | None = None
 
 
 class TrajectoryRunner:
-    """Executes one goal at a time on ``mech`` within ``limits``.
+    """Plans goals on ``mech`` within ``limits`` and tracks how each ends (module docstring).
 
-    :param mech: the mechanism model (IK, Jacobian, workspace).
+    :param mech: the mechanism model (IK, Jacobian, forward kinematics, workspace).
     :param limits: the limits every motion is checked against.
     :param profile: the motion profile for goals.
     :param fitts: Fitts' law for goals without a duration.
     :param fitts_axes: coordinates whose distance is Fitts' amplitude (default all).
     :param lookahead: s between planning a goal and its motion taking over.
-    :param path_tolerance: tracking error that aborts the goal, or ``None``: in actuator
-        coordinates (m or rad, like the drives' following error), since a measured pose of
-        an ill-conditioned mechanism amplifies encoder resolution (the lumbar brace near
-        theta = 0: 10 um on a2 is mm of x).
-    :param tracking_latency: s; a measurement is compared with the setpoints of the last
-        ``tracking_latency`` before its time (the setpoint -> IK -> CAN -> drive -> encoder
-        -> forward-kinematics pipeline delay); the smallest error counts.
+    :param pose_tolerance: largest |estimate - goal| per pose coordinate for success.
+    :param settle_time: s after the motion finished for the estimate to get there.
+    :param report_timeout: s of silence from the driver (no start after the takeover, no
+        end after the planned duration and half of it again) before a goal is aborted.
     """
 
     def __init__(self, mech: 'Mechanism', limits: Limits, *, profile: Profile | str,
                  fitts: FittsLaw, fitts_axes: tuple[int, ...] | None = None,
-                 lookahead: float = 0.0, path_tolerance: float | None = None,
-                 tracking_latency: float = 0.25) -> None:
+                 lookahead: float = 0.1, pose_tolerance: np.ndarray | float = 0.002,
+                 settle_time: float = 0.5, report_timeout: float = 1.0) -> None:
         self.mech = mech
         self.limits = limits
         self.profile = Profile(profile)
         self.fitts = fitts
         self.fitts_axes = fitts_axes
         self.lookahead = float(lookahead)
-        self.path_tolerance = path_tolerance
-        self.tracking_latency = float(tracking_latency)
-        # (time, actuator coordinates) of recent setpoints, for the tracking check
-        self._recent: deque[tuple[float, np.ndarray]] = deque(maxlen=4096)
+        self.pose_tolerance = np.broadcast_to(np.asarray(pose_tolerance, float), (mech.dof,)).copy()
+        self.settle_time = float(settle_time)
+        self.report_timeout = float(report_timeout)
         self._motion: _Motion | None = None
-        self._pending: _Motion | None = None
-        self._active_goal: str | None = None
-        self._last_setpoint: np.ndarray | None = None
-        self._last_t = -np.inf
+        self._hold: np.ndarray | None = None
+        self._stopping: int | None = None        # tag of a motion braking after a cancel
+        self._goal: _Goal | None = None
+        self.driver_enabled = False
+        self.driver_reason = 'no driver state received yet'
+        self._estimate: np.ndarray | None = None
+        #: s the driver's motion runs behind its plan (SYNCs a stalled host missed while
+        #: moving), as its last execution event said
+        self.driver_lag = 0.0
 
     # -- state -----------------------------------------------------------------------
     @property
     def active_goal(self) -> str | None:
-        """The goal being executed (``None`` when idle or braking)."""
-        return self._active_goal
+        """The goal being executed or settling (``None`` when idle)."""
+        return None if self._goal is None else self._goal.goal_id
 
     @property
-    def has_setpoint(self) -> bool:
-        """``False`` until the first motion: the runner then has nothing to hold."""
-        return self._motion is not None or self._pending is not None
+    def settled(self) -> bool:
+        """The commanded motion is known (no cancelled motion still braking)."""
+        return self._stopping is None
 
     @property
-    def moving(self) -> bool:
-        """A motion is pending or not yet at its end (as of the last :meth:`step`)."""
-        if self._pending is not None:
-            return True
-        m = self._motion
-        return m is not None and self._last_t < m.t0 + m.trajectory.duration
+    def hold(self) -> np.ndarray | None:
+        """The pose the command holds when idle (``None`` before the driver said where)."""
+        return None if self._hold is None else self._hold.copy()
 
-    def _motion_at(self, t: float) -> _Motion | None:
-        if self._pending is not None and t >= self._pending.t0:
-            return self._pending
-        return self._motion
+    def start_state(self, now: float, *, measured: np.ndarray | None = None) -> StartState | None:
+        """Where a goal planned now starts (at ``now + lookahead``); ``None`` while a
+        cancelled motion is still braking (its end is known only when the driver says).
 
-    def start_state(self, now: float, *, measured: np.ndarray | None = None) -> StartState:
-        """Where a goal received at ``now`` starts (``now + lookahead``).
-
-        The commanded motion (running, or holding its end) once there is one, so commands
-        stay continuous; before the first motion the ``measured`` pose if given (the caller
-        passes it only when fresh), else the last setpoint, else home.
+        The handed-out motion when one runs then, else the hold; before the driver said
+        where the command is, the ``measured`` pose (fresh estimate), else home.
         """
+        if self._stopping is not None:
+            return None
         t0 = now + self.lookahead
-        m = self._motion_at(t0)
-        if m is not None:
+        m = self._motion
+        zero = np.zeros(self.mech.dof)
+        if m is not None and t0 < m.t0 + m.trajectory.duration:
             p, v, a = m.trajectory.sample(t0 - m.t0)
             return StartState(t0, MotionState(p, v, a), 'motion')
-        zero = np.zeros(self.mech.dof)
+        if m is not None:
+            return StartState(t0, MotionState(m.trajectory.sample(m.trajectory.duration)[0], zero,
+                                              zero.copy()), 'motion')
+        if self._hold is not None:
+            return StartState(t0, MotionState(self._hold.copy(), zero, zero.copy()), 'hold')
         if measured is not None:
-            return StartState(t0, MotionState(np.asarray(measured, float), zero, zero), 'measured')
-        if self._last_setpoint is not None:
-            return StartState(t0, MotionState(self._last_setpoint.copy(), zero, zero), 'setpoint')
-        return StartState(t0, MotionState(np.asarray(self.mech.home_pose, float), zero, zero), 'home')
+            return StartState(t0, MotionState(np.asarray(measured, float), zero, zero.copy()), 'measured')
+        return StartState(t0, MotionState(np.asarray(self.mech.home_pose, float), zero, zero.copy()),
+                          'home')
 
     # -- goals -------------------------------------------------------------------------
+    def admit(self, goal_id: str) -> list[GoalEvent]:
+        """A goal arrives: rejected at once while the drives are not enabled."""
+        if not self.driver_enabled:
+            return [GoalEvent(goal_id, GoalState.REJECTED,
+                              f'the drives are not enabled ({self.driver_reason})')]
+        return []
+
     def plan(self, request: GoalRequest, start: StartState) -> Plan:
         """Plan ``request`` from ``start`` (pure: may run without the node's lock).
 
@@ -189,162 +217,181 @@ class TrajectoryRunner:
                            v0=start.state.v, a0=start.state.a, fitts=self.fitts,
                            fitts_axes=self.fitts_axes)
 
-    def commit(self, request: GoalRequest, plan: Plan, start: StartState, *,
-               now: float, force: bool = True) -> list[GoalEvent]:
-        """Make ``plan`` the motion from ``start.t0``; the goal it replaces is reported cancelled.
-
-        A plan that comes after ``start.t0`` (planning took longer than the lookahead):
-        from rest it simply starts now (exact); while moving, the running motion has gone
-        on since ``start.t0``, so with ``force=False`` :class:`LatePlan` is raised (plan
-        again from :meth:`start_state`), with ``force=True`` the new motion takes over
-        on its own clock from ``start.t0``: position, velocity and acceleration differ
-        from the old motion's only by the difference in jerk times the lateness (and its
-        square and cube), and the event says how late it was.
-        """
+    def commit(self, request: GoalRequest, plan: Plan, start: StartState, *, tag: int,
+               now: float) -> list[GoalEvent]:
+        """Make ``plan`` the motion handed out with ``tag``, from ``start.t0``; the goal it
+        replaces is reported cancelled. The caller publishes it (stamp = ``tag``)."""
         events: list[GoalEvent] = []
-        notes = list(plan.notes)
-        t0 = start.t0
-        if now > t0:
-            m = self._motion_at(now)
-            at_rest = not (np.any(start.state.v) or np.any(start.state.a))
-            held = m is None or np.array_equal(m.trajectory.sample(now - m.t0)[0], start.state.p)
-            if at_rest and held:
-                t0 = now
-            elif not force:
-                raise LatePlan(f'plan finished {now - t0:.3f} s after its takeover time')
-            else:
-                notes.append(f'planning took longer than the lookahead {self.lookahead:.3f} s: '
-                             f'takeover {now - t0:.3f} s late')
-        if self._active_goal is not None:
-            events.append(GoalEvent(self._active_goal, GoalState.CANCELLED,
+        if not self.driver_enabled:
+            return [GoalEvent(request.goal_id, GoalState.REJECTED,
+                              f'the drives are not enabled ({self.driver_reason})')]
+        if self._goal is not None:
+            events.append(GoalEvent(self._goal.goal_id, GoalState.CANCELLED,
                                     f'preempted by goal {request.goal_id}'))
-        motion = _Motion(t0, plan.trajectory, request.goal_id,
-                         np.asarray(request.target, float), notes)
-        self._install(motion, now)
-        self._active_goal = request.goal_id
-        events.append(GoalEvent(request.goal_id, GoalState.ACCEPTED, '; '.join(notes),
-                                motion.target, plan.duration, plan.profile.value))
+        self._motion = _Motion(start.t0, plan.trajectory, tag)
+        target = np.asarray(request.target, float)
+        self._goal = _Goal(request.goal_id, target, tag, plan.duration, plan.profile.value)
+        notes = list(plan.notes)
+        events.append(GoalEvent(request.goal_id, GoalState.ACCEPTED, '; '.join(notes), target,
+                                plan.duration, plan.profile.value, dict(plan.values)))
         return events
 
-    def submit(self, request: GoalRequest, *, now: float,
-               measured: np.ndarray | None = None) -> list[GoalEvent]:
-        """:meth:`start_state`, :meth:`plan` and :meth:`commit` in one call.
+    def cancel(self, *, now: float) -> tuple[str, int | None, list[GoalEvent]]:
+        """``~/cancel``: ``(message, tag of the motion to stop or None, events)``.
 
-        A rejected goal changes nothing: the running motion (or the hold) continues.
+        The driver decelerates the motion along its path; until it reports where that ended
+        (:meth:`on_execution`), no new motion is planned.
         """
-        start = self.start_state(now, measured=measured)
-        try:
-            plan = self.plan(request, start)
-        except PlanRejected as exc:
-            return [GoalEvent(request.goal_id, GoalState.REJECTED, exc.reason,
-                              np.asarray(request.target, float) if request.target is not None else None)]
-        return self.commit(request, plan, start, now=now)
+        goal = self._goal
+        m = self._motion
+        moving = m is not None and \
+            now < m.t0 + m.trajectory.duration + self.driver_lag + self.report_timeout
+        events: list[GoalEvent] = []
+        if goal is not None:
+            events.append(GoalEvent(goal.goal_id, GoalState.CANCELLED,
+                                    'cancel requested; decelerating along the path'))
+            self._goal = None
+        if not moving:
+            return ('no motion; holding' if goal is None else f'goal {goal.goal_id} cancelled; holding',
+                    None, events)
+        assert m is not None
+        self._stopping = m.tag
+        return ((f'goal {goal.goal_id} cancelled' if goal else 'stopping') +
+                '; decelerating along the path', m.tag, events)
 
-    def reject(self, goal_id: str, reason: str) -> list[GoalEvent]:
-        """Report a goal rejected before planning (malformed message)."""
-        return [GoalEvent(goal_id, GoalState.REJECTED, reason)]
+    def abort_all(self, reason: str) -> list[GoalEvent]:
+        """Report the active goal aborted (shutdown, a node gone)."""
+        goal, self._goal = self._goal, None
+        return [] if goal is None else [GoalEvent(goal.goal_id, GoalState.ABORTED, reason)]
 
-    def _install(self, motion: _Motion, now: float) -> None:
-        if motion.t0 > now:
-            # keep the running motion until the switch; a pending one not yet started is dropped
-            self._pending = motion
-        else:
-            self._motion, self._pending = motion, None
-
-    def _brake(self, now: float) -> tuple[_Motion | None, str]:
-        """A stop from the state at ``now + lookahead``, checked against the mechanism."""
-        start = self.start_state(now)
-        s = start.state
-        if start.source != 'motion':
-            return None, 'at rest'
-        if not (np.any(s.v) or np.any(s.a)):
-            hold = brake(s.p, s.v, s.a, max_acceleration=self.limits.max_acceleration)
-            return _Motion(start.t0, hold, None), 'at rest'
-        traj = brake(s.p, s.v, s.a, max_acceleration=self.limits.max_acceleration)
-        for _ in range(4):
-            if check_path(self.mech, traj, self.limits, samples=50).ok:
-                return _Motion(start.t0, traj, None), f'decelerating to rest in {traj.duration:.3f} s'
-            # stopping within the platform limits leaves the checked region: stop harder
-            traj = brake(s.p, s.v, s.a, max_acceleration=4.0 * self.limits.max_acceleration,
-                         min_duration=traj.duration / 2.0)
-        return None, 'no stop within the limits was found: finishing the checked motion'
-
-    def cancel(self, *, now: float) -> tuple[bool, str, list[GoalEvent]]:
-        """Decelerate to rest and hold (``~/cancel``). Returns (success, message, events)."""
-        goal = self._active_goal
-        if goal is None and not self.moving:
-            return True, 'no active goal; holding', []
-        motion, how = self._brake(now)
-        if motion is not None:
-            self._install(motion, now)
-        self._active_goal = None
-        events = [GoalEvent(goal, GoalState.CANCELLED, f'cancel requested; {how}')] if goal else []
-        return True, (f'goal {goal} cancelled; {how}' if goal else f'stopping; {how}'), events
-
-    def abort(self, reason: str, *, now: float) -> list[GoalEvent]:
-        """Stop the active goal (brake to rest and hold) and report it aborted with ``reason``."""
-        goal = self._active_goal
-        if goal is None:
-            return []
-        motion, how = self._brake(now)
-        if motion is not None:
-            self._install(motion, now)
-        self._active_goal = None
-        return [GoalEvent(goal, GoalState.ABORTED, f'{reason}; {how}')]
-
-    def check_tracking(self, measured: np.ndarray, *, now: float,
-                       measured_at: float | None = None) -> list[GoalEvent]:
-        """Abort the active goal if the brace is off its path (SAFETY.md 11).
-
-        The error is taken in actuator coordinates: ``|IK(measured) - IK(setpoint)|`` per
-        actuator, against every setpoint of the ``tracking_latency`` before
-        ``measured_at`` (the measurement's time on this runner's clock; default ``now``);
-        the smallest such error must stay within ``path_tolerance``.
+    # -- what the stack reports ----------------------------------------------------------
+    def on_driver_state(self, enabled: bool, reason: str, command: np.ndarray | None, *,
+                        executing: bool, now: float) -> list[GoalEvent]:
+        """The driver's latched state. Leaving ``enabled`` aborts the active goal with the
+        driver's reason; while enabled and holding (not ``executing``) with nothing of ours
+        under way, the hold is FK of its ``command`` (re-anchoring after enable or a stop).
         """
-        if self.path_tolerance is None or self._active_goal is None or not self._recent:
+        events: list[GoalEvent] = []
+        was = self.driver_enabled
+        self.driver_enabled = bool(enabled)
+        self.driver_reason = reason
+        if not enabled:
+            if self._goal is not None:
+                events += self.abort_all(f'the drives stopped: {reason}')
+            self._motion = None
+            self._stopping = None
+        if enabled and command is not None and (not executing or not was) and self._goal is None:
+            pose = self._forward(command)
+            if pose is not None:
+                self._hold = pose
+                self._motion = None
+                self._stopping = None
+        return events
+
+    def on_execution(self, tag: int, kind: str, reason: str, positions: np.ndarray | None, *,
+                     now: float, lag: float | None = None) -> list[GoalEvent]:
+        """An event of the trajectory handed out with ``tag`` (ik node or driver); ``lag``:
+        s the driver's motion then ran behind its plan (the driver says; ``None``: unknown)."""
+        events: list[GoalEvent] = []
+        if lag is not None and math.isfinite(lag) and lag >= 0.0:
+            self.driver_lag = float(lag)
+        goal = self._goal if self._goal is not None and self._goal.tag == tag else None
+        ours = self._motion is not None and self._motion.tag == tag
+        if kind == 'started' and goal is not None:
+            goal.started = True
+        elif kind == 'finished':
+            if ours:
+                assert self._motion is not None
+                self._hold = np.asarray(self._motion.trajectory.sample(
+                    self._motion.trajectory.duration)[0], float)
+                self._motion = None
+            if self._stopping == tag:
+                self._stopping = None
+            if goal is not None:
+                goal.finished_at = now
+        elif kind in ('stopped', 'rejected'):
+            if ours or self._stopping == tag:
+                self._motion = None
+                self._stopping = None
+                pose = self._forward(positions) if positions is not None and len(positions) else None
+                if pose is not None:
+                    self._hold = pose
+            if goal is not None:
+                self._goal = None
+                what = 'the driver stopped its motion' if kind == 'stopped' else 'its motion was rejected'
+                events.append(GoalEvent(goal.goal_id, GoalState.ABORTED, f'{what}: {reason}'))
+        return events
+
+    def on_estimate(self, pose: np.ndarray, *, stamp: float, now: float) -> list[GoalEvent]:
+        """The estimated platform pose at ``stamp`` (runner clock): a finished goal succeeds
+        once it is within ``pose_tolerance`` of the goal."""
+        self._estimate = np.asarray(pose, float)
+        goal = self._goal
+        if goal is None or goal.finished_at is None or stamp < goal.finished_at:
             return []
-        measured = np.asarray(measured, float)
-        if not np.all(np.isfinite(measured)):
-            return self.abort('measured pose is not finite', now=now)
-        t_meas = now if measured_at is None else float(measured_at)
-        window = [q for t, q in self._recent if t_meas - self.tracking_latency <= t <= t_meas + 1e-3]
-        if not window:
-            return []
-        try:
-            q_meas = self.mech.inverse(measured)
-        except ValueError as exc:            # UnreachablePose: off the stroke
-            return self.abort(f'measured pose is off the actuators\' range: {exc}', now=now)
-        err = np.abs(np.asarray(window) - q_meas).max(axis=1)
-        best = int(np.argmin(err))
-        if float(err[best]) > self.path_tolerance:
-            i = int(np.argmax(np.abs(window[best] - q_meas)))
-            name = self.mech.actuator_names[i]
-            return self.abort(f'tracking error {err[best]:.4f} on actuator {name} exceeds the path '
-                              f'tolerance {self.path_tolerance:.4f}', now=now)
+        err = np.abs(self._estimate - goal.target)
+        if goal.best_error is None or np.max(err / self.pose_tolerance) < np.max(goal.best_error / self.pose_tolerance):
+            goal.best_error = err
+        if np.all(err <= self.pose_tolerance):
+            self._goal = None
+            return [GoalEvent(goal.goal_id, GoalState.SUCCEEDED, '', goal.target, goal.duration,
+                              goal.profile, {'final_error': err.tolist()})]
         return []
 
-    # -- setpoints ---------------------------------------------------------------------
-    def step(self, now: float) -> tuple[MotionState | None, list[GoalEvent]]:
-        """The setpoint at ``now`` (``None`` before the first motion) and any goal that ended."""
-        if self._pending is not None and now >= self._pending.t0:
-            self._motion, self._pending = self._pending, None
-        self._last_t = now
+    def check(self, now: float) -> list[GoalEvent]:
+        """Timeouts: no start, no end, or an estimate that never got to the goal."""
+        goal = self._goal
         m = self._motion
-        if m is None:
-            return None, []
-        p, v, a = m.trajectory.sample(now - m.t0)
-        self._last_setpoint = p.copy()
-        if self.path_tolerance is not None:
-            try:
-                self._recent.append((now, self.mech.inverse(p)))
-            except ValueError:               # planned paths are checked; keep the history clean
-                pass
-            while self._recent and self._recent[0][0] < now - self.tracking_latency - 1.0:
-                self._recent.popleft()
-        events: list[GoalEvent] = []
-        if (m.goal_id is not None and m.goal_id == self._active_goal
-                and now - m.t0 >= m.trajectory.duration):
-            self._active_goal = None
-            events.append(GoalEvent(m.goal_id, GoalState.SUCCEEDED, '', m.target,
-                                    m.trajectory.duration, self.profile.value))
-        return MotionState(p, v, a), events
+        if goal is None:
+            return []
+        if goal.finished_at is not None:
+            if now - goal.finished_at <= self.settle_time:
+                return []
+            self._goal = None
+            if goal.best_error is None:
+                return [GoalEvent(goal.goal_id, GoalState.ABORTED,
+                                  f'no pose estimate within {self.settle_time:g} s after the motion '
+                                  'finished: where the platform is cannot be told')]
+            return [GoalEvent(goal.goal_id, GoalState.ABORTED, 'the platform did not follow: ' +
+                              self.describe_error(goal.best_error),
+                              values={'final_error': goal.best_error.tolist()})]
+        if m is not None and m.tag == goal.tag:
+            if not goal.started and now > m.t0 + self.driver_lag + self.report_timeout:
+                self._goal = None
+                return [GoalEvent(goal.goal_id, GoalState.ABORTED,
+                                  f'the driver did not start the motion within {self.report_timeout:g} s '
+                                  'of its start time (is can_driver_node running?)')]
+            # a late SYNC delays the driver's motion (it never steps it): the delay the
+            # driver reported, and half the duration again before calling the driver silent
+            late = self.report_timeout + 0.5 * m.trajectory.duration + self.driver_lag
+            if now > m.t0 + m.trajectory.duration + late:
+                self._goal = None
+                return [GoalEvent(goal.goal_id, GoalState.ABORTED,
+                                  'the driver did not report the motion finished within '
+                                  f'{late:.2f} s of its planned end')]
+        return []
+
+    def describe_error(self, err: np.ndarray) -> str:
+        """The final error per coordinate against the tolerance, in mm / deg where it helps."""
+        names = getattr(self.mech, 'pose_names', None) or (('x', 'y', 'theta') if self.mech.dof == 3
+                                                             else tuple(f'q{i}' for i in range(self.mech.dof)))
+        parts = []
+        angular = self.mech.dof == 3 and getattr(self.mech, 'pose_kind', 'planar') == 'planar'
+        for i, (e, tol) in enumerate(zip(err, self.pose_tolerance)):
+            if angular and i == 2:
+                parts.append(f'{names[i]} off by {np.degrees(e):.3f} deg (tolerance {np.degrees(tol):.3f} deg)')
+            elif angular or self.mech.dof == 2:
+                parts.append(f'{names[i]} off by {e * 1e3:.2f} mm (tolerance {tol * 1e3:.2f} mm)')
+            else:
+                parts.append(f'{names[i]} off by {e:.4g} (tolerance {tol:.4g})')
+        return '; '.join(parts)
+
+    # -- helpers -----------------------------------------------------------------------
+    def _forward(self, q: np.ndarray) -> np.ndarray | None:
+        """FK of actuator positions, continuous with what the runner last knew."""
+        hint = self._hold if self._hold is not None else (
+            self._estimate if self._estimate is not None else np.asarray(self.mech.home_pose, float))
+        try:
+            return np.asarray(self.mech.forward_nearest(np.asarray(q, float), hint), float)
+        except ValueError:
+            return None

@@ -1,0 +1,197 @@
+"""Supervision in the cycle: the per-SYNC monitors and the "cause still present" predicates.
+
+Part of :class:`~.master.BraceMaster` (a mixin). :meth:`MonitorMixin._monitor` runs in the
+SYNC thread on each drive's newest TPDO1 and heartbeat (SAFETY.md 2, 4, 8, 9, 11); every
+fault it latches carries a predicate that ``recover()`` evaluates (the fault table is in
+:mod:`.supervision`). :meth:`MonitorMixin._on_fault` is the first reaction to a latched
+fault: stop tracking commands; when the drives are healthy and the fault is one the command
+can be braked from (force, wrench, step, following error, speed), the cycle first brakes
+the motion along its path (all axes together), then quick-stops.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+
+from .cia402 import NmtState, State402, decode_state, describe_statusword, emcy_description
+from .state import MasterState, _Drive
+from .supervision import Fault, FaultKind, Sample, check_sample
+
+__all__ = ['MonitorMixin', 'BRAKEABLE', 'RELIEVABLE']
+
+log = logging.getLogger('brace_control.can.master')
+
+_SW_FAULT = 1 << 3
+_SW_WARNING = 1 << 7
+_SW_LIMIT = 1 << 11
+
+#: N the force must have risen over the last samples for the soft limit to brake a motion
+SOFT_RISE_N = 0.5
+#: faults after which the drives still follow commands: the motion is braked along its
+#: path before the quick stop (a per-axis quick stop would leave the axes inconsistent)
+BRAKEABLE = frozenset({FaultKind.FORCE_LIMIT, FaultKind.WRENCH_LIMIT, FaultKind.STEP_LIMIT,
+                       FaultKind.FOLLOWING_ERROR, FaultKind.OVERSPEED,
+                       FaultKind.LOAD_CELL_SATURATED, FaultKind.EXTERNAL})
+
+
+#: latched stops a relief may back off from: the drives are healthy and the cause is load
+RELIEVABLE = frozenset({FaultKind.FORCE_LIMIT, FaultKind.WRENCH_LIMIT, FaultKind.LOAD_CELL_SATURATED,
+                        FaultKind.FOLLOWING_ERROR, FaultKind.STEP_LIMIT, FaultKind.OVERSPEED,
+                        FaultKind.EXTERNAL})
+
+
+class MonitorMixin:
+    """Per-cycle monitors and fault predicates (see the module docstring)."""
+
+    def _on_fault(self, fault: Fault) -> None:
+        """First reaction to a newly latched fault (any thread): commands stop being
+        accepted; the cycle brakes or quick-stops on its next run."""
+        log.error('protective stop: %s', fault.describe())
+        self._tracking = False
+        self._fault_to_handle = True
+        if self.state not in (MasterState.CLOSED, MasterState.OPEN, MasterState.BOOTING):
+            self._set_state(MasterState.FAULT)
+
+    # ------------------------------------------------------------------ "cause still present" predicates
+
+    def _heartbeat_missing(self, d: _Drive) -> Callable[[], bool]:
+        return lambda: time.monotonic() - d.hb_time > self.limits.heartbeat_timeout
+
+    def _nmt_not_operational(self, d: _Drive) -> Callable[[], bool]:
+        return lambda: d.nmt != NmtState.OPERATIONAL
+
+    def _emcy_present(self, d: _Drive) -> Callable[[], bool]:
+        return lambda: (d.state in (State402.FAULT, State402.FAULT_REACTION_ACTIVE)
+                        or d.emcy_nonzero_time > self._recover_time)
+
+    def _drive_faulted(self, d: _Drive) -> Callable[[], bool]:
+        return lambda: d.state in (State402.FAULT, State402.FAULT_REACTION_ACTIVE)
+
+    def _stale(self, d: _Drive, *, timed: bool = True) -> bool:
+        """No TPDO1 from ``d`` for ``stale_periods`` SYNCs (SAFETY 9).
+
+        Judged on what was received, in bus order, so a receive thread (or a simulator)
+        that runs late does not make a drive look silent: ``d`` is stale when the other
+        drives have sent ``stale_periods`` TPDO1 each since its last one, or when every
+        drive has been silent for :attr:`all_silent_periods` SYNCs (bus, wiring, or a
+        host too loaded to receive: heartbeat and error-frame supervision cover those too).
+        """
+        s = d.sample
+        if s is None:
+            return True
+        n = self.limits.stale_periods
+        others = len(self._drives) - 1
+        if others and self._tpdo_total - d.rx_total >= n * others:
+            return True
+        return timed and (self._sync_index - s.sync_index >= self.all_silent_periods
+                and time.perf_counter() - d.rx_time > self.all_silent_periods * self.config.period)
+
+    def _sample_condition(self, d: _Drive, kind: FaultKind) -> Callable[[], bool]:
+        def present() -> bool:
+            s = d.sample
+            if s is None or self._stale(d):
+                return True
+            found = check_sample(None, s, self.limits, commanded=self.scaling.to_si(d.target))
+            return any(k is kind for k, _ in found)
+        return present
+
+    def _step_condition(self) -> bool:
+        """A step-limit stop's cause is the command, which ``recover`` discards: it is gone
+        once every drive holds still."""
+        return any(abs(d.velocity) > 0.01 * self.limits.v_max for d in self._drives)
+
+    def _monitor(self) -> None:
+        """Per-cycle monitors on each drive's latest TPDO1 and heartbeat (SAFETY 2, 4, 8, 9, 11)."""
+        limits = self.limits
+        now = time.monotonic()
+        tracking = self._tracking and self.state is MasterState.ENABLED
+        in_grace = now < self._grace_until
+        for d in self._drives:
+            name = d.name
+            if now - d.hb_time > limits.heartbeat_timeout and not in_grace:
+                age = now - d.hb_time
+                self.supervisor.report(
+                    FaultKind.HEARTBEAT_LOST,
+                    f'no heartbeat from node {d.node_id} for {age * 1e3:.0f} ms '
+                    f'(consumer time {limits.heartbeat_timeout * 1e3:.0f} ms)',
+                    drive=name, still_present=self._heartbeat_missing(d))
+            elif d.nmt is not None and d.nmt != NmtState.OPERATIONAL:
+                self.supervisor.report(
+                    FaultKind.NMT_STATE, f'node {d.node_id} reports NMT state '
+                    f'{NmtState(d.nmt).name if d.nmt in NmtState._value2member_map_ else d.nmt}',
+                    drive=name, still_present=self._nmt_not_operational(d))
+            s = d.sample
+            if s is None:
+                continue
+            if self._stale(d, timed=not in_grace):
+                self.supervisor.report(
+                    FaultKind.STALE_FEEDBACK,
+                    f'no TPDO1 (position, load cell) from node {d.node_id} for '
+                    f'{self._sync_index - s.sync_index} SYNC periods (the other drives answered)'
+                    if self._tpdo_total - d.rx_total >= self.limits.stale_periods * max(1, len(self._drives) - 1)
+                    else f'no TPDO1 from any drive for {self._sync_index - s.sync_index} SYNC periods',
+                    drive=name,
+                    still_present=lambda d=d: self._stale(d))
+            if s is d.checked:
+                continue
+            sw = s.statusword
+            if sw & _SW_FAULT:
+                code = d.emcy[0] if d.emcy and d.emcy[0] else None
+                why = f' (last EMCY {code:04X}h {emcy_description(code)})' if code else ''
+                self.supervisor.report(FaultKind.DRIVE_FAULT,
+                                       f'statusword {sw:04X}h: {describe_statusword(sw)}{why}',
+                                       drive=name, code=code, still_present=self._drive_faulted(d))
+            if sw & (_SW_WARNING | _SW_LIMIT) or d.flagged:
+                d.flagged = bool(sw & (_SW_WARNING | _SW_LIMIT))
+                if sw & _SW_WARNING:
+                    self.supervisor.warn(f'{name}.warning', f'{name}: statusword warning bit set ({sw:04X}h)')
+                else:
+                    self.supervisor.unwarn(f'{name}.warning')
+                if sw & _SW_LIMIT:
+                    self.supervisor.warn(f'{name}.limit', f'{name}: internal limit active ({sw:04X}h)')
+                else:
+                    self.supervisor.unwarn(f'{name}.limit')
+            commanded = (self.scaling.to_si(self._commanded_for(d, s))
+                         if tracking and decode_state(sw) is State402.OPERATION_ENABLED else None)
+            for kind, cause in check_sample(d.checked, s, limits, commanded=commanded):
+                self.supervisor.report(kind, cause, drive=name,
+                                       still_present=(None if kind is FaultKind.POSITION_JUMP
+                                                      else self._sample_condition(d, kind)))
+                if kind is FaultKind.POSITION_JUMP:
+                    self.homed = False         # the encoder reference is suspect
+            # SAFETY.md 14: above the soft limit a motion that keeps pressing is braked (the
+            # cycle does it); a motion that unloads the leg (the force falling) goes on
+            f = abs(s.force)
+            trend = d.force_trend
+            if (f > limits.soft_force_limit and tracking and self.executor.moving
+                    and len(trend) >= 5 and f - trend[0] > SOFT_RISE_N and self._soft_stop is None):
+                self._soft_stop = (d.index, s.force)
+            trend.append(f)
+            if commanded is not None and abs(d.velocity) > limits.speed_factor * limits.v_max:
+                self.supervisor.report(
+                    FaultKind.OVERSPEED, f'measured speed {d.velocity * 1e3:.1f} mm/s exceeds '
+                    f'{limits.speed_factor:g} x {limits.v_max * 1e3:.1f} mm/s', drive=name,
+                    still_present=lambda d=d: abs(d.velocity) > self.limits.speed_factor * self.limits.v_max)
+            d.checked = s
+
+    def _commanded_for(self, d: _Drive, s: Sample) -> int:
+        """The target (counts) a sample is judged against: of the targets sent from two SYNCs
+        before the one it answers up to now, the one nearest to its position.
+
+        A drive answers SYNC k with where it was after following the targets up to SYNC
+        k - 1; an answer that arrives late (a loaded host, a simulator in the same process)
+        must not be judged against targets sent after it was sampled: with a fast actuator
+        one SYNC of the target ramp (v_max x period) can exceed the path tolerance.
+        Without a record (before the first SYNC of tracking) the current target.
+        """
+        pos = self.scaling.to_counts(s.position)
+        best = None
+        # no copy of the record: the SYNC thread appends to it and is the only caller (via
+        # _cycle -> _monitor), so it does not change while this loop reads it
+        for index, target in reversed(d.sent):
+            if index < s.sync_index - 2:
+                break
+            if best is None or abs(target - pos) < abs(best - pos):
+                best = target
+        return d.target if best is None else best

@@ -1,0 +1,323 @@
+"""The CiA 402 master's state and configuration: what it holds, not what it does.
+
+:class:`MasterConfig` (read from the device YAML), the master's :class:`MasterState`, the
+snapshots it reports (:class:`DriveStatus`, :class:`BusStatus`, :class:`MasterStatus`,
+:class:`Feedback`) and its per-drive bookkeeping (``_Drive``), shared by the modules the
+master is made of (:mod:`.boot`, :mod:`.receive`, :mod:`.monitors`, :mod:`.cycle`).
+"""
+from __future__ import annotations
+
+import enum
+import math
+import threading
+from collections import deque
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import canopen
+import numpy as np
+
+from ..config import ConfigError, DeviceConfig
+from .cia402 import State402, decode_state
+from .pdo import LOAD_CELL_INPUT, TORQUE_ACTUAL
+from .supervision import Fault, Limits, Sample
+from .timing import TimingReport
+from .units import AxisScaling, actuator_kind, scaling_from_config
+
+__all__ = ['MasterState', 'MasterConfig', 'DriveStatus', 'BusStatus', 'MasterStatus', 'Feedback',
+           'interpolation_period']
+
+
+class MasterState(enum.Enum):
+    """Where the master is; ``FAULT`` = protective stop latched."""
+
+    CLOSED = 'closed'
+    OPEN = 'open'                # bus open, heartbeat produced, drives not configured
+    BOOTING = 'booting'
+    DISABLED = 'disabled'        # drives OPERATIONAL (NMT), 402 not enabled
+    ENABLED = 'enabled'          # drives OPERATION ENABLED, following setpoints
+    HALTED = 'halted'            # quick stop on request (not a fault)
+    HOMING = 'homing'
+    FAULT = 'fault'              # protective stop latched until recover()
+    RELIEVING = 'relieving'      # a latched stop, the drives backing off the load (relieve())
+
+
+@dataclass(frozen=True)
+class MasterConfig:
+    """Everything the master needs, read from the device YAML (SI units)."""
+
+    interface: str
+    channel: str
+    bitrate: int
+    node_ids: tuple[int, ...]
+    names: tuple[str, ...]
+    eds: Path | None
+    sync_rate_hz: float
+    boot_timeout: float
+    drive_heartbeat_ms: int
+    heartbeat_consumer_ms: int
+    master_heartbeat_ms: int
+    master_node_id: int
+    homing_method: int
+    frame_log: str
+    following_error_window: float
+    scaling: AxisScaling
+    limits: Limits
+    home_lengths: tuple[float, ...] | None = None
+    force_object: int = LOAD_CELL_INPUT
+    #: N/m (N·m/rad): each actuator's axial stiffness with its load path (``actuator.stiffness``);
+    #: a relief's force gain comes from it
+    stiffness: float = 1.0e6
+    spin_s: float = 0.0003           # busy-wait before each SYNC deadline
+    send_timeout: float = 0.0005     # never block the cycle on a full TX queue
+    transition_timeout: float = 1.0  # s for a 402 transition of all drives
+    thread_priority: int = 0         # SCHED_FIFO priority of the SYNC thread (0: normal)
+    # a TPDO is attributed to the SYNC it answered from its bus timestamp (wall clock)
+
+    @property
+    def period(self) -> float:
+        return 1.0 / self.sync_rate_hz
+
+    @classmethod
+    def from_device_config(cls, cfg: Mapping[str, Any], *, channel: str | None = None,
+                           home_lengths: Sequence[float] | None = None,
+                           **overrides: Any) -> MasterConfig:
+        """Build from a :class:`~brace_control.config.DeviceConfig` (or nested mapping).
+
+        ``home_lengths`` (m per actuator) default to IK(``mechanism.home_pose``) when the
+        mechanism model can be built. ``channel`` and ``overrides`` replace YAML values.
+
+        :raises ConfigError: a missing or inconsistent parameter, named.
+        """
+        dc = cfg if isinstance(cfg, DeviceConfig) else DeviceConfig(cfg)
+        scaling = scaling_from_config(dc)
+        limits = Limits.from_config(dc, scaling)
+        node_ids = tuple(int(i) for i in dc.get_path('can.node_ids'))
+        names = tuple(str(n) for n in dc.get_path('mechanism.actuator_names',
+                                                  [f'a{i + 1}' for i in range(len(node_ids))]))
+        if len(names) != len(node_ids):
+            raise ConfigError(f'parameter can.node_ids has {len(node_ids)} ids for '
+                              f'{len(names)} actuators {list(names)}')
+        if len(set(node_ids)) != len(node_ids) or not all(1 <= i <= 127 for i in node_ids):
+            raise ConfigError(f'parameter can.node_ids = {list(node_ids)}: distinct ids 1..127 expected')
+        master_id = int(dc.get_path('can.master_node_id', 127))
+        if master_id in node_ids:
+            raise ConfigError(f'parameter can.master_node_id = {master_id} collides with a drive id')
+        eds_name = str(dc.get_path('can.eds', '') or '')
+        eds = dc.relative_file(eds_name) if eds_name else None
+        if eds is not None and not eds.is_file():
+            from ..config import config_dir
+            alt = config_dir() / eds_name
+            eds = alt if alt.is_file() else None
+        if home_lengths is None:
+            home_lengths = _home_lengths(dc)
+        values: dict[str, Any] = dict(
+            interface=str(dc.get_path('can.interface')),
+            channel=channel or str(dc.get_path('can.channel')),
+            bitrate=int(dc.get_path('can.bitrate')),
+            node_ids=node_ids, names=names, eds=eds,
+            sync_rate_hz=float(dc.get_path('can.sync_rate_hz')),
+            boot_timeout=float(dc.get_path('can.boot_timeout')),
+            drive_heartbeat_ms=int(dc.get_path('can.drive_heartbeat_ms')),
+            heartbeat_consumer_ms=int(dc.get_path('can.heartbeat_consumer_ms')),
+            master_heartbeat_ms=int(dc.get_path('can.master_heartbeat_ms')),
+            master_node_id=master_id,
+            homing_method=int(dc.get_path('can.homing_method', 35)),
+            frame_log=str(dc.get_path('can.frame_log', '') or ''),
+            spin_s=float(dc.get_path('can.sync_spin_us', 300)) * 1e-6,
+            thread_priority=int(dc.get_path('can.sync_thread_priority', 0)),
+            following_error_window=float(dc.get_path('safety.following_error_window')),
+            scaling=scaling, limits=limits,
+            home_lengths=None if home_lengths is None else tuple(float(x) for x in home_lengths),
+            # linear actuators carry a load cell on 2401h; rotary drives report 6077h torque
+            force_object=(LOAD_CELL_INPUT if actuator_kind(dc) == 'linear' else TORQUE_ACTUAL),
+            stiffness=float(dc.get_path('actuator.stiffness', 1.0e6)),
+        )
+        values.update(overrides)
+        return cls(**values)
+
+
+def _home_lengths(cfg: DeviceConfig) -> tuple[float, ...] | None:
+    """IK(home_pose) of the device's mechanism, or ``None`` if the model is unavailable."""
+    if 'mechanism' not in cfg:
+        return None
+    try:
+        from ..mechanisms import mechanism_from_config
+        mech = mechanism_from_config(cfg)
+        return tuple(float(x) for x in mech.inverse(mech.home_pose))
+    except ImportError:
+        return None
+
+
+@dataclass(frozen=True)
+class DriveStatus:
+    """One drive as the master sees it (diagnostics)."""
+
+    name: str
+    node_id: int
+    nmt: str
+    state: State402
+    statusword: int
+    position: float          # m
+    velocity: float          # m/s
+    force: float             # N
+    target: float            # m, last target sent
+    heartbeat_age: float     # s (inf: never heard)
+    last_emcy: str           # '' if none
+    samples: int
+
+
+@dataclass(frozen=True)
+class BusStatus:
+    """Bus counters over the last ~second."""
+
+    frames_per_s: float
+    load: float              # fraction of the bit rate (worst-case stuffing)
+    error_state: str         # 'active' | 'error passive' | 'bus off'
+    error_frames: int
+    send_failures: int
+
+
+@dataclass(frozen=True)
+class MasterStatus:
+    state: MasterState
+    drives: tuple[DriveStatus, ...]
+    bus: BusStatus
+    timing: TimingReport
+    faults: tuple[Fault, ...]
+    warnings: tuple[str, ...]
+    stale_setpoint_holds: int
+    homed: bool
+    accepted_setpoints: int = 0        # stream setpoints that passed the step limit
+    rejected_setpoints: int = 0        # stream setpoints refused (stamps not increasing)
+    execution: str = 'hold'            # the executor: hold | trajectory | stream
+    trajectory: int | None = None      # tag (header stamp, ns) of the running trajectory
+
+
+@dataclass(frozen=True)
+class Feedback:
+    """Latest measurements in SI, actuator order; ``stamp`` = perf_counter of the SYNC,
+    ``wall`` = the wall clock (``time.time()``) when that SYNC was sent (0 if unknown): the
+    instant the samples describe, on the clock of message stamps and of the bus."""
+
+    position: np.ndarray
+    velocity: np.ndarray
+    force: np.ndarray
+    states: tuple[State402, ...]
+    stamp: float
+    valid: bool              # every drive has answered at least one SYNC
+    wall: float = 0.0
+
+
+@dataclass
+class _Setpoint:
+    position: np.ndarray
+    time: float              # perf_counter at reception
+    seq: int
+    stamp: float | None = None   # s, the sender's sample instant (header stamp), if any
+    velocity: np.ndarray | None = None   # unit/s, the sender's rate (feed-forward), if any
+
+
+@dataclass
+class _Drive:
+    index: int
+    name: str
+    node_id: int
+    node: canopen.RemoteNode
+    rpdo_id: int                           # RPDO1: controlword + 607Ah target
+    rpdo2_id: int                          # RPDO2: 60B1h velocity offset
+    sample: Sample | None = None
+    checked: Sample | None = None          # last sample the monitors saw
+    history: deque = field(default_factory=lambda: deque(maxlen=6))   # (t, pos, sync index)
+    velocity: float = 0.0
+    samples: int = 0
+    rx_time: float = -math.inf             # perf_counter of the last TPDO
+    rx_total: int = 0                      # master's TPDO count at this drive's last TPDO
+    hb_time: float = -math.inf             # monotonic of the last heartbeat / boot-up
+    nmt: int | None = None
+    booted: threading.Event = field(default_factory=threading.Event)
+    emcy: tuple[int, int, float] | None = None     # code, register, monotonic
+    emcy_nonzero_time: float = -math.inf
+    target: int = 0                        # counts, sent in RPDO1
+    velocity_offset: int = 0               # counts/s, sent in RPDO2 (60B1h feed-forward)
+    offset_sent: int | None = None         # the last 60B1h sent (RPDO2 goes out when it changes)
+    rpdo_sent: tuple[int, int] | None = None   # the last (controlword, target) sent in RPDO1
+    recent: deque = field(default_factory=lambda: deque(maxlen=16))  # Samples, by SYNC
+    sent: deque = field(default_factory=lambda: deque(maxlen=64))    # (SYNC index, target counts)
+    reset_phase: bool = False
+    flagged: bool = False                  # warning / internal-limit bit seen last sample
+    force_trend: deque = field(default_factory=lambda: deque(maxlen=10))   # |force| of recent samples
+
+    @property
+    def state(self) -> State402:
+        return decode_state(self.sample.statusword) if self.sample is not None else State402.UNKNOWN
+
+
+
+def interpolation_period(period: float) -> tuple[int, int]:
+    """60C2h value and index (value·10^index s) of the SYNC period, value ≤ 255."""
+    for index in (-3, -4, -5, -6, -2, -1, 0):
+        value = period / 10.0 ** index
+        if 1 <= round(value) <= 255 and abs(round(value) - value) < 1e-6 * max(1.0, value):
+            return round(value), index
+    for index in (-3, -4, -5, -6):
+        value = round(period / 10.0 ** index)
+        if 1 <= value <= 255:
+            return value, index
+    return 255, 0
+
+
+
+#: a relief stops this far (m or rad) from an actuator's stroke end
+STROKE_MARGIN = 0.001
+
+
+class Relief:
+    """One relief in progress (:meth:`~.master.BraceMaster.relieve`), shared by the API thread
+    that waits and the SYNC thread that moves (SAFETY.md 15)."""
+
+    def __init__(self, *, release_force: float, speed: float, max_travel: float, deadline: float,
+                 start: np.ndarray, forces: np.ndarray, relievable: frozenset,
+                 lo: np.ndarray, hi: np.ndarray, names: tuple[str, ...],
+                 confirm: int = 1) -> None:
+        self.release_force = release_force
+        #: consecutive samples every force must stay below the release force (one noisy
+        #: reading below it is not an unloaded leg)
+        self.confirm = max(1, int(confirm))
+        self._below = 0
+        self.speed = speed
+        self.max_travel = max_travel
+        self.deadline = deadline
+        self.start = np.asarray(start, dtype=float).copy()
+        self.forces_before = np.asarray(forces, dtype=float).copy()
+        self.forces = self.forces_before.copy()
+        self.travel = 0.0
+        self.relievable = relievable
+        self.lo, self.hi, self.names = np.asarray(lo, float), np.asarray(hi, float), names
+        self.outcome: str | None = None        # None while moving; '' unloaded; else why it stopped
+        self.finished = threading.Event()
+
+    def update(self, forces: np.ndarray, q: np.ndarray, t: float) -> None:
+        """Judge the latest forces and travel: unloaded, or stopped short (and why)."""
+        self.forces = np.asarray(forces, dtype=float).copy()
+        self.travel = float(np.max(np.abs(np.asarray(q) - self.start)))
+        self._below = self._below + 1 if np.all(np.abs(self.forces) < self.release_force) else 0
+        if self._below >= self.confirm:
+            self.outcome = ''
+        elif np.any(np.asarray(q) <= self.lo + STROKE_MARGIN) or np.any(np.asarray(q) >= self.hi - STROKE_MARGIN):
+            i = int(np.argmax((np.asarray(q) <= self.lo + STROKE_MARGIN) | (np.asarray(q) >= self.hi - STROKE_MARGIN)))
+            self.outcome = (f'{self.names[i]} reached the end of its stroke with forces still '
+                            f'{np.round(self.forces, 1).tolist()} N')
+        elif self.travel > self.max_travel:
+            self.outcome = (f'moved {self.travel * 1e3:.1f} mm (the most a relief may move) with '
+                            f'forces still {np.round(self.forces, 1).tolist()} N')
+        elif t > self.deadline:
+            self.outcome = f'time out with forces still {np.round(self.forces, 1).tolist()} N'
+
+    def check_faults(self, faults: tuple) -> None:
+        """A new fault during the relief that it cannot back off from ends it."""
+        other = [f for f in faults if f.kind not in self.relievable]
+        if other and self.outcome is None:
+            self.outcome = f'a new fault: {other[0].describe()}'

@@ -1,0 +1,99 @@
+"""Every topic name and QoS profile of the stack, in one place.
+
+Nodes, bring-up, the demo, its report and the tests import them from here (ARCHITECTURE.md,
+"Data flow"). Each QoS choice says why.
+"""
+from __future__ import annotations
+
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+__all__ = [
+    'POSE_GOAL', 'POSE_PATH', 'POSE_TRAJECTORY', 'ACTUATOR_TRAJECTORY', 'POSE_SETPOINT',
+    'ACTUATOR_SETPOINT', 'JOINT_STATES', 'POSE', 'POSE_WITH_COVARIANCE', 'WRENCH',
+    'GOAL_STATUS', 'EXECUTION_STATUS', 'DRIVER_STATE', 'DIAGNOSTICS', 'SIM_JOINT_STATES',
+    'SIM_POSE', 'SIM_WRENCH', 'WRENCH_GOAL', 'SIM_BODY_REST',
+    'GOAL_QOS', 'TRAJECTORY_QOS', 'SETPOINT_QOS', 'STATE_QOS', 'MEASURED_QOS', 'STATUS_QOS',
+    'LATCHED_QOS', 'DIAGNOSTICS_QOS',
+]
+
+# ----------------------------------------------------------------------------- goals
+#: ``geometry_msgs/PoseStamped``: go to this pose
+POSE_GOAL = '/brace/pose_goal'
+#: ``nav_msgs/Path``: pass the poses, stop at the last
+POSE_PATH = '/brace/pose_path'
+#: ``geometry_msgs/WrenchStamped``: the wrench the interaction mode holds on the body
+WRENCH_GOAL = '/brace/wrench_goal'
+
+# ------------------------------------------------------------------------- motion
+#: ``trajectory_msgs/MultiDOFJointTrajectory``: a planned motion, once, whole (pose knots)
+POSE_TRAJECTORY = '/brace/pose_trajectory'
+#: ``trajectory_msgs/JointTrajectory``: the same motion in actuator coordinates
+ACTUATOR_TRAJECTORY = '/brace/actuator_trajectory'
+#: ``geometry_msgs/PoseStamped`` stream (teleoperation, interaction mode)
+POSE_SETPOINT = '/brace/pose_setpoint'
+#: ``sensor_msgs/JointState`` stream: position (m or rad), velocity (feed-forward)
+ACTUATOR_SETPOINT = '/brace/actuator_setpoint'
+
+# ------------------------------------------------------------------ measurement
+#: ``sensor_msgs/JointState``: position, velocity, effort = load-cell N / torque N·m
+JOINT_STATES = '/brace/joint_states'
+#: ``geometry_msgs/PoseStamped``: the estimated platform pose (load aware)
+POSE = '/brace/pose'
+#: ``geometry_msgs/PoseWithCovarianceStamped``: the same with its covariance
+POSE_WITH_COVARIANCE = '/brace/pose_with_covariance'
+#: ``geometry_msgs/WrenchStamped``: the wrench the brace applies to the body
+WRENCH = '/brace/wrench'
+
+# -------------------------------------------------------------------- status
+#: ``diagnostic_msgs/DiagnosticStatus``: one message per goal event
+GOAL_STATUS = '/brace/goal_status'
+#: ``diagnostic_msgs/DiagnosticStatus``: what happened to each trajectory (ik node, driver)
+EXECUTION_STATUS = '/brace/execution_status'
+#: ``diagnostic_msgs/DiagnosticStatus``: the driver's state, latched (disabled, enabled,
+#: halted, protective stop with its reasons)
+DRIVER_STATE = '/brace/driver_state'
+#: ``diagnostic_msgs/DiagnosticArray`` from every node
+DIAGNOSTICS = '/diagnostics'
+
+# ------------------------------------------------------------------- simulation
+#: the simulator's ground truth (``can.sim`` only), same conventions as the measured topics
+SIM_JOINT_STATES = '/brace/sim/joint_states'
+SIM_POSE = '/brace/sim/pose'
+SIM_WRENCH = '/brace/sim/wrench'
+#: ``geometry_msgs/PoseStamped``: where the simulated body rests (a test moves the patient)
+SIM_BODY_REST = '/brace/sim/body_rest'
+
+# -------------------------------------------------------------------------- QoS
+#: Goals: reliable, keep all. No goal may be lost without a status, even in a flood: the
+#: node takes every sample and coalesces them itself (the newest preempts, the others are
+#: reported superseded), so no history depth can overflow.
+GOAL_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
+#: Planned motions: reliable, a short history. Each is sent once and supersedes the one
+#: before, so a late subscriber needs none of the past ones (volatile).
+TRAJECTORY_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                            reliability=ReliabilityPolicy.RELIABLE,
+                            durability=DurabilityPolicy.VOLATILE)
+#: Setpoint streams: reliable, depth 10. A best-effort depth-1 stream would let DDS drop a
+#: setpoint whenever a callback runs late and the driver's step check (SAFETY.md 7) would
+#: see a double step; 10 samples absorb jitter without a backlog the staleness check
+#: would miss (stale setpoints stop the stream, SAFETY.md 1).
+SETPOINT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                          reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.VOLATILE)
+#: Measured state (joint_states, pose, wrench): reliable, depth 10 (a slow callback loses
+#: no sample of the 100 Hz stream; recorded bags are complete).
+STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                       reliability=ReliabilityPolicy.RELIABLE)
+#: A subscriber that needs only the latest measurement: best effort matches any publisher.
+MEASURED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                          reliability=ReliabilityPolicy.BEST_EFFORT)
+#: Events (goal and execution status): reliable, keep all. A goal flood makes hundreds of
+#: events at once; a keep-last history would overwrite some before they are delivered.
+STATUS_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
+#: State that a late subscriber must see at once (the driver's state): transient local,
+#: the last sample kept.
+LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+DIAGNOSTICS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                             reliability=ReliabilityPolicy.RELIABLE)
