@@ -293,6 +293,8 @@ class BringUp:
 
     def start(self) -> 'BringUp':
         """Spin the executor(s) in background threads."""
+        from .nodes.runner import freeze_start_up_heap
+        freeze_start_up_heap()
         for i, ex in enumerate(self._executors):
             t = threading.Thread(target=self._spin, args=(ex,), name=f'bringup-executor-{i}',
                                  daemon=True)

@@ -516,7 +516,12 @@ def test_success_needs_the_motion_finished_and_the_estimate_at_the_goal(mech, li
     assert run.on_execution(7, 'started', '', None, now=0.1) == []
     assert run.on_execution(7, 'finished', '', lumbar_eq3(goal), now=2.0) == []
     assert run.on_estimate(goal + [0.0, 0.0, 0.5], stamp=1.9, now=2.0) == []   # older than the end
-    events = run.on_estimate(goal + [0.0015, -0.001, 0.004], stamp=2.01, now=2.01)
+    # inside the tolerance (2 mm, 2 mm, 0.3 deg), but it has to stay there for 50 ms
+    assert run.on_estimate(goal + [0.0019, -0.001, 0.004], stamp=2.01, now=2.01) == []
+    assert run.on_estimate(goal + [0.0021, -0.001, 0.004], stamp=2.03, now=2.03) == []   # out again
+    assert run.on_estimate(goal + [0.0015, -0.001, 0.004], stamp=2.04, now=2.04) == []
+    assert run.on_estimate(goal + [0.0015, -0.001, 0.004], stamp=2.08, now=2.08) == []   # 40 ms inside
+    events = run.on_estimate(goal + [0.0015, -0.001, 0.004], stamp=2.09, now=2.09)
     assert [(e.goal_id, e.state) for e in events] == [('1', GoalState.SUCCEEDED)]
     assert events[0].values['final_error'] == pytest.approx([0.0015, 0.001, 0.004], abs=1e-12)
     np.testing.assert_allclose(run.start_state(3.0).state.p, goal, atol=1e-12)   # holds the goal
@@ -613,7 +618,8 @@ def test_random_preemptions_stay_continuous_and_every_goal_ends_once(mech, limit
         run.on_execution(2, 'started', '', None, now=start.t0)
         end = start.t0 + plan2.duration
         run.on_execution(2, 'finished', '', None, now=end)
-        events += run.on_estimate(HOME + d2, stamp=end + 0.01, now=end + 0.01)
+        for k in range(7):                                       # 60 ms at the goal
+            events += run.on_estimate(HOME + d2, stamp=end + 0.01 * (k + 1), now=end + 0.01 * (k + 1))
     events += run.check(1e3)
     ends = [(e.goal_id, e.state) for e in events if e.state.terminal]
     assert sorted(g for g, _ in ends) == ['1', '2']              # exactly one end each

@@ -12,6 +12,7 @@ the drives), and only then is the context shut down.
 """
 from __future__ import annotations
 
+import gc
 import os
 import signal
 import sys
@@ -26,7 +27,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from ..config import ConfigError
 
-__all__ = ['run_node', 'usage', 'make_executor', 'EXIT_STARTUP', 'EXIT_CONFIG']
+__all__ = ['run_node', 'usage', 'make_executor', 'freeze_start_up_heap', 'EXIT_STARTUP', 'EXIT_CONFIG']
 
 EXIT_STARTUP = 1
 EXIT_CONFIG = 2
@@ -48,6 +49,19 @@ def make_executor(context: object = None) -> Executor:
         else:
             return EventsExecutor(context=context)
     return SingleThreadedExecutor(context=context)
+
+
+def freeze_start_up_heap() -> None:
+    """Take every object built so far out of the cyclic garbage collector's passes
+    (:func:`gc.freeze`).
+
+    A node's start-up builds ~10^5 long-lived objects (modules, message classes, the object
+    dictionary, the mechanism); Python's full collection walks all of them and holds the GIL
+    meanwhile: 0.1-0.5 s on a loaded machine, longer than the drives' heartbeat consumer
+    time (bench/RESULTS.md, "Host stalls"). Frozen, they are never walked again; objects
+    made later are collected as usual. Call it once the node is up, before it spins.
+    """
+    gc.freeze()
 
 
 def usage(executable: str, summary: str) -> str:
@@ -100,6 +114,7 @@ def run_node(factory: Callable[[], Node], *, executable: str, summary: str,
     try:
         if start is not None:
             start(node)
+        freeze_start_up_heap()
         spinner.add_node(node)
         # wake at least every 0.1 s to see a signal (Python runs handlers between bytecodes)
         while not stop.is_set() and rclpy.ok():
