@@ -558,16 +558,22 @@ def validate_flat(flat: Mapping[str, Any], source: str | None = None) -> None:
     if 'mechanism.type' in flat and (not isinstance(kind, str) or kind not in MECHANISM_SCHEMAS):
         raise ConfigError(f'parameter {"mechanism.type"!r} = {kind!r}{_where(source)} is unknown; '
                           f'expected one of {sorted(MECHANISM_SCHEMAS)}')
-    for name in sorted(flat):
+    names = sorted(flat)
+    specs: dict[str, Param] = {}
+    for name in names:                 # unknown keys first: the likeliest cause of the rest
         if name in REMOVED:
-            raise ConfigError(f'parameter {name!r}{_where(source)} {REMOVED[name]}')
+            raise ConfigError(f'{name} {REMOVED[name]}' + (f' (in {source})' if source else ''))
         spec = lookup(name, kind)
         if spec is None:
             guess = _suggest(name, kind)
             hint = f"; did you mean {guess!r}?" if guess else ''
             what = f' for mechanism.type {kind!r}' if name.startswith('mechanism.') and kind else ''
             raise ConfigError(f'unknown parameter {name!r}{_where(source)}{what}{hint}')
-        check_value(name, flat[name], spec, source)
+        specs[name] = spec
+    for name in names:
+        if name.startswith('mechanism.') and kind is None:
+            continue                   # no type: the keys of every type; values checked by from_config
+        check_value(name, flat[name], specs[name], source)
 
 
 def validate(params: Mapping[str, Any], source: str | None = None) -> None:
