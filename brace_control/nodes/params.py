@@ -137,4 +137,7 @@ def declare_device_parameters(node: Node, sections: Iterable[str], *,
         for name in mech_keys:
             _nest(cfg, name, declare(name, given[name], ParameterDescriptor(
                 description='mechanism geometry (from the device file)', read_only=True)))
-    return DeviceConfig(cfg, source=where)
+    out = DeviceConfig(cfg, source=where)
+    for key in [k for k, v in out.items() if isinstance(v, dict) and k not in sections]:
+        del out[key]                 # only what the node declared, never silent defaults
+    return out
