@@ -51,7 +51,12 @@ class Ros:
         return self.add(Node(name, context=self.context))
 
     def device_node(self, cls: type, path: str | Path = LUMBAR_YAML, **overrides: Any) -> Node:
-        return self.add(cls(context=self.context, cli_args=params_args(path, **overrides)))
+        """``cls`` started with the device file; ``overrides`` that are keywords of its
+        constructor (``boot=False``) go there, the rest are ``-p`` parameter overrides."""
+        import inspect
+        ctor = inspect.signature(cls).parameters
+        kwargs = {k: overrides.pop(k) for k in list(overrides) if k in ctor}
+        return self.add(cls(context=self.context, cli_args=params_args(path, **overrides), **kwargs))
 
     def collect(self, node: Node, msg_type: type, topic: str, qos: Any = RELIABLE_10) -> list:
         """Subscribe ``topic`` on ``node``; the returned list fills as messages arrive."""
