@@ -784,7 +784,7 @@ class CanDriverNode(LifecycleNode):
                 try:
                     with self._transition_lock:
                         if self._lifecycle not in allowed or self.master is None:
-                            raise _Refused(self._refusal(f'~/{name}'))
+                            raise _Refused(self._refusal(name))
                         done.set_result((True, fn()))
                 except DriverError as exc:
                     done.set_result((False, str(exc)))
@@ -792,7 +792,7 @@ class CanDriverNode(LifecycleNode):
                     done.set_result((False, f'{name} failed: {exc!r}'))
             async with self._service_lock:    # one service at a time
                 if self._lifecycle not in allowed:
-                    response.success, response.message = False, self._refusal(f'~/{name}')
+                    response.success, response.message = False, self._refusal(name)
                 else:
                     threading.Thread(target=work, name=f'can_driver_{name}', daemon=True).start()
                     response.success, response.message = await done
