@@ -27,6 +27,31 @@ def test_launch_file_is_valid_python_with_the_four_nodes():
                for n in tree.body)
     for name in ('trajectory_node', 'ik_node', 'can_driver_node', 'kinetics_node'):
         assert f"'{name}'" in src
+    # the driver is a launch_ros LifecycleNode that launch (not the executable) takes to active
+    for needed in ('LifecycleNode(', "'--manual-lifecycle'", 'TRANSITION_CONFIGURE',
+                   'TRANSITION_ACTIVATE', "goal_state='inactive'", "'manual_lifecycle'"):
+        assert needed in src, needed
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize('manual', [False, True], ids=['automatic', 'manual-lifecycle'])
+def test_in_process_bringup_takes_the_driver_to_active_unless_manual(manual):
+    ctx = Context()
+    rclpy.init(context=ctx)
+    try:
+        b = BringUp(LUMBAR_YAML, nodes=['can_driver_node'], context=ctx, manual_lifecycle=manual,
+                    extra_args=['-p', f'can.channel:=bringup-{os.getpid()}-{int(manual)}']).start()
+        try:
+            driver = b.node('can_driver_node')
+            assert driver.lifecycle_state == ('unconfigured' if manual else 'active')
+            assert (driver.master is None) == manual
+            ok, msg = b.call('/can_driver_node/home', timeout=10)
+            assert ok != manual and (not manual or 'unconfigured' in msg), msg
+        finally:
+            b.shutdown()
+        assert driver.lifecycle_state == 'finalized' and driver.master is None
+    finally:
+        rclpy.shutdown(context=ctx)
 
 
 def test_node_class_finds_the_node_of_a_module():

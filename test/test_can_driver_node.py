@@ -1,6 +1,8 @@
 """can_driver_node with rclpy: services, joint_states, setpoint validation, diagnostics.
 
-The node runs in-process with the simulated brace on its own virtual channel.
+The node runs in-process with the simulated brace on its own virtual channel, brought to
+active by :meth:`CanDriverNode.autostart` (configure + activate; the lifecycle itself is
+tested in test_lifecycle.py).
 """
 from __future__ import annotations
 
@@ -35,6 +37,7 @@ def call(ros, node, service, timeout=5.0):
 @pytest.fixture
 def driver(ros):  # noqa: F811 - the fixture from ros_helpers
     node = ros.device_node(CanDriverNode, **{'can.channel': f'nodetest-{os.getpid()}-{next(_ids)}'})
+    node.autostart()
     yield node
     node.shutdown()
 
@@ -132,8 +135,8 @@ def test_platform_wrench_limit_stops_and_reports(ros, driver):  # noqa: F811
 
 
 def test_executable_boots_and_exits_0_on_sigint(tmp_path):
-    """``ros2 run brace_control can_driver_node``: boots the simulated brace, Ctrl-C ends it
-    cleanly (drives disabled, bus closed, exit code 0)."""
+    """``ros2 run brace_control can_driver_node``: configures itself (boots the simulated
+    brace), Ctrl-C ends it cleanly (drives disabled, bus closed, exit code 0)."""
     import signal
     import subprocess
     import sys
@@ -172,12 +175,12 @@ def test_bad_parameter_exits_2_naming_it(capsys):
 def test_a_bad_safety_value_stops_start_up_naming_the_parameter(ros, name, value):  # noqa: F811
     from brace_control.config import ConfigError
     with pytest.raises(ConfigError, match=name.replace('.', r'\.')):
-        ros.device_node(CanDriverNode, boot=False, **{name: value})
+        ros.device_node(CanDriverNode, **{name: value})
 
 
 def test_safety_limits_are_read_only_at_run_time(ros):  # noqa: F811
     from rclpy.parameter import Parameter
-    node = ros.device_node(CanDriverNode, boot=False)
+    node = ros.device_node(CanDriverNode)
     try:
         result = node.set_parameters([Parameter('safety.force_limit', value=1000.0)])[0]
         assert not result.successful and 'read-only' in result.reason

@@ -83,17 +83,19 @@ class MasterConfig:
     @classmethod
     def from_device_config(cls, cfg: Mapping[str, Any], *, channel: str | None = None,
                            home_lengths: Sequence[float] | None = None,
-                           **overrides: Any) -> MasterConfig:
+                           mechanism: Any = None, **overrides: Any) -> MasterConfig:
         """Build from a :class:`~brace_control.config.DeviceConfig` (or nested mapping).
 
         ``home_lengths`` (m per actuator) default to IK(``mechanism.home_pose``) when the
         mechanism model can be built. ``channel`` and ``overrides`` replace YAML values.
+        ``mechanism``: the model of ``cfg``'s mechanism, already built by the caller (the CAN
+        driver builds one per process); default: built here from ``cfg``.
 
         :raises ConfigError: a missing or inconsistent parameter, named.
         """
         dc = as_device_config(cfg)      # checked against brace_control.schema, defaults filled
         scaling = scaling_from_config(dc)
-        limits = Limits.from_config(dc, scaling)
+        limits = Limits.from_config(dc, scaling, mechanism=mechanism)
         node_ids = tuple(int(i) for i in dc.get_path('can.node_ids'))
         names = tuple(str(n) for n in dc.get_path('mechanism.actuator_names',
                                                   [f'a{i + 1}' for i in range(len(node_ids))]))
@@ -112,7 +114,7 @@ class MasterConfig:
             alt = config_dir() / eds_name
             eds = alt if alt.is_file() else None
         if home_lengths is None:
-            home_lengths = _home_lengths(dc)
+            home_lengths = _home_lengths(dc, mechanism)
         values: dict[str, Any] = dict(
             interface=str(dc.get_path('can.interface')),
             channel=channel or str(dc.get_path('can.channel')),
@@ -139,8 +141,11 @@ class MasterConfig:
         return cls(**values)
 
 
-def _home_lengths(cfg: DeviceConfig) -> tuple[float, ...] | None:
-    """IK(home_pose) of the device's mechanism, or ``None`` if the model is unavailable."""
+def _home_lengths(cfg: DeviceConfig, mech: Any = None) -> tuple[float, ...] | None:
+    """IK(home_pose) of the device's mechanism (``mech``, else built from ``cfg``), or
+    ``None`` if the model is unavailable."""
+    if mech is not None:
+        return tuple(float(x) for x in mech.inverse(mech.home_pose))
     if 'mechanism' not in cfg:
         return None
     try:

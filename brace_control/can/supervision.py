@@ -232,13 +232,16 @@ class Limits:
         return self.strokes[index]
 
     @classmethod
-    def from_config(cls, cfg: Mapping[str, Any], scaling: AxisScaling) -> Limits:
+    def from_config(cls, cfg: Mapping[str, Any], scaling: AxisScaling, *,
+                    mechanism: Any = None) -> Limits:
         """Read the thresholds; :class:`ConfigError` names a missing, unknown or out-of-range
-        parameter (a dict is checked against :mod:`brace_control.schema` like a file)."""
+        parameter (a dict is checked against :mod:`brace_control.schema` like a file).
+        ``mechanism``: the model of ``cfg``'s mechanism if the caller has built it (else
+        built here)."""
         cfg = as_device_config(cfg)
         get = cfg.get_path
         mech = cfg.get('mechanism', {}) if isinstance(cfg.get('mechanism'), Mapping) else {}
-        strokes = _actuator_limits(cfg)
+        strokes = _actuator_limits(cfg, mechanism)
         if strokes is not None:
             lo, hi = min(s[0] for s in strokes), max(s[1] for s in strokes)
         else:
@@ -324,9 +327,14 @@ def check_step(drive: str, current: float, new: float, dt: float, limits: Limits
     return None
 
 
-def _actuator_limits(cfg: Mapping[str, Any]) -> tuple[tuple[float, float], ...] | None:
-    """Per-actuator ranges from the mechanism model (``mechanism.actuator_limits``), or
-    ``None`` when the config holds no buildable mechanism (then ``stroke_min/max`` apply)."""
+def _actuator_limits(cfg: Mapping[str, Any], mechanism: Any = None
+                     ) -> tuple[tuple[float, float], ...] | None:
+    """Per-actuator ranges from the mechanism model (``mechanism.actuator_limits``; the given
+    model, else one built from ``cfg``), or ``None`` when the config holds no buildable
+    mechanism (then ``stroke_min/max`` apply)."""
+    if mechanism is not None:
+        lo, hi = mechanism.actuator_limits
+        return tuple((float(a), float(b)) for a, b in zip(lo, hi))
     if not isinstance(cfg.get('mechanism'), Mapping) or 'type' not in cfg['mechanism']:
         return None
     try:

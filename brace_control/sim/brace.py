@@ -151,17 +151,20 @@ class SimulatedBrace:
     :param seed: load-cell noise seed; default ``sim.seed``.
     :param dt_source: see :class:`~brace_control.sim.host.SimBus` (``'1006h'`` default).
     :param start: open the bus and boot the drives now (else call :meth:`start`).
+    :param mechanism: the model of ``config``'s mechanism if the caller has built it (the CAN
+        driver shares its own: the mechanism classes keep no per-call state); default: built
+        from ``config``.
     """
 
     def __init__(self, config: DeviceConfig | Mapping[str, Any] | str | Path, *,
                  channel: str | None = None, interface: str | None = None,
                  eds: str | Path | None = None, seed: int | None = None,
-                 dt_source: str = '1006h', start: bool = True) -> None:
+                 dt_source: str = '1006h', start: bool = True, mechanism: Any = None) -> None:
         # a DeviceConfig is checked against brace_control.schema and has its defaults filled
         cfg = config if isinstance(config, DeviceConfig) else (
             DeviceConfig(config) if isinstance(config, Mapping) else load_device_config(config))
         self.config = cfg
-        self.mechanism = mechanism_from_config(cfg)
+        self.mechanism = mechanism if mechanism is not None else mechanism_from_config(cfg)
         can_cfg, act, sim = cfg.section('can'), cfg.section('actuator'), cfg.section('sim')
         self.node_ids: tuple[int, ...] = tuple(int(i) for i in cfg.get_path('can.node_ids'))
         n = self.mechanism.n_actuators
