@@ -12,6 +12,7 @@ parameter file as given and declared read-only.
 """
 from __future__ import annotations
 
+import array
 from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
@@ -212,7 +213,7 @@ def declare_device_parameters(node: Node, sections: Iterable[str]) -> DeviceConf
         if group is not None and group not in sections:
             continue
         value = declare(name, spec.default, _descriptor(name, spec))
-        if isinstance(value, (list, tuple)) or type(value).__name__ == 'array':
+        if isinstance(value, (list, tuple, array.array)):
             value = list(value)
         if spec.choices and value not in spec.choices:
             raise ConfigError(f'parameter {name!r} = {value!r}; expected one of {list(spec.choices)}')
@@ -229,7 +230,7 @@ def declare_device_parameters(node: Node, sections: Iterable[str]) -> DeviceConf
         for name in mech_keys:
             value = declare(name, given[name], ParameterDescriptor(
                 description='mechanism geometry (from the device file)', read_only=True))
-            if isinstance(value, (list, tuple)) or type(value).__name__ == 'array':
+            if isinstance(value, (list, tuple, array.array)):
                 value = list(value)
             _nest(cfg, name, value)
     return DeviceConfig(cfg)
