@@ -1,6 +1,7 @@
 """rclpy helpers for node tests: a private Context per test, spinning until a condition.
 
-Import the fixture into a test module (``from ros_helpers import ros  # noqa: F401``).
+The ``ros`` fixture that yields a :class:`Ros` lives in ``conftest.py``; test modules take it as
+an argument and import from here only the helpers and constants they name.
 No fixed sleeps: tests spin the executor until what they wait for has happened, with a
 timeout that fails the test with a message.
 """
@@ -90,12 +91,3 @@ class Ros:
             node.destroy_node()
         rclpy.shutdown(context=self.context)
 
-
-@pytest.fixture
-def ros():
-    """A fresh :class:`Ros` (own Context and executor), shut down after the test."""
-    r = Ros()
-    try:
-        yield r
-    finally:
-        r.close()

@@ -15,7 +15,7 @@ from sensor_msgs.msg import JointState
 from brace_control.bringup import BringUp, find_executable, node_class
 from brace_control.nodes.ik_node import IkNode
 from brace_control.nodes.msgs import pose_msg
-from ros_helpers import LUMBAR_YAML, REPO, RELIABLE_10, ros  # noqa: F401
+from ros_helpers import LUMBAR_YAML, REPO, RELIABLE_10
 
 MY_NODES = ['ik_node', 'kinetics_node']
 
@@ -95,7 +95,7 @@ def test_in_process_bringup_carries_a_setpoint_and_shuts_down():
 @pytest.mark.ros
 @pytest.mark.slow
 @pytest.mark.parametrize('mode', [[], ['--processes']], ids=['one-process', 'processes'])
-def test_cli_stops_cleanly_on_sigint_and_sigterm(ros, mode):  # noqa: F811
+def test_cli_stops_cleanly_on_sigint_and_sigterm(ros, mode):
     for sig in (signal.SIGINT, signal.SIGTERM):
         proc = subprocess.Popen(
             [sys.executable, '-m', 'brace_control.bringup', str(LUMBAR_YAML), *mode,

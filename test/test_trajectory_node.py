@@ -24,7 +24,6 @@ from brace_control.nodes.msgs import (pose_knots_from_msg, pose_msg, sec_to_stam
                                       status_msg, status_values)
 from brace_control.nodes.trajectory_node import PLAN_LOOKAHEAD_S, TrajectoryNode
 from brace_control.trajectory import KnotTrajectory
-from ros_helpers import ros  # noqa: F401
 from rpr_oracles import lumbar_eq3
 
 pytestmark = pytest.mark.ros

@@ -17,6 +17,7 @@ keys are taken from the parameter file as given and declared read-only.
 """
 from __future__ import annotations
 
+import array
 import sys
 from collections.abc import Iterable, Sequence
 from typing import Any
@@ -58,7 +59,7 @@ def _overrides(node: Node) -> dict[str, Any]:
 
 def _plain(value: Any) -> Any:
     """A ROS parameter value as plain Python (arrays -> lists)."""
-    if isinstance(value, (list, tuple)) or type(value).__name__ == 'array':
+    if isinstance(value, (list, tuple, array.array)):
         return list(value)
     return value
 

@@ -93,15 +93,17 @@ def run_node(factory: Callable[[], Node], *, executable: str, summary: str,
     if '-h' in user_args or '--help' in user_args:
         print(usage(executable, summary))
         return 0
+    # our own signal handling (module docstring): the context outlives the spin loop. Installed
+    # first, so a signal during start-up (rclpy.init, building the node) ends the process
+    # cleanly too, not with a KeyboardInterrupt traceback.
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
     try:
-        # our own signal handling (module docstring): the context outlives the spin loop
         rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     except Exception as exc:  # noqa: BLE001 - rcl reports bad --ros-args as RCLError
         print(f'{executable}: cannot start: {exc}', file=sys.stderr)
         return EXIT_CONFIG
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
     node = None
     try:
         node = factory()
@@ -112,7 +114,7 @@ def run_node(factory: Callable[[], Node], *, executable: str, summary: str,
     spinner = executor()
     code = 0
     try:
-        if start is not None:
+        if start is not None and not stop.is_set():     # a signal while building: no start
             start(node)
         freeze_start_up_heap()
         spinner.add_node(node)
