@@ -20,7 +20,6 @@ import argparse
 import gc
 import os
 import sys
-import threading
 import time
 from pathlib import Path
 

@@ -30,7 +30,7 @@ from brace_control.nodes import topics
 from brace_control.nodes.can_driver_node import CanDriverNode
 from brace_control.nodes.msgs import joint_trajectory_msg
 from brace_control.trajectory import MinimumJerk
-from ros_helpers import LUMBAR_YAML, RELIABLE_10, ros  # noqa: F401
+from ros_helpers import LUMBAR_YAML
 
 pytestmark = pytest.mark.ros
 _ids = itertools.count()
@@ -100,7 +100,7 @@ def operation_enabled(sw: int) -> bool:
 class Lifecycle:
     """The ``ros2 lifecycle`` client side: lifecycle_msgs services of the driver."""
 
-    def __init__(self, ros, probe, name: str = DRIVER) -> None:  # noqa: F811
+    def __init__(self, ros, probe, name: str = DRIVER) -> None:
         self.ros, self.probe = ros, probe
         self.get = probe.create_client(GetState, f'{name}/get_state')
         self.change = probe.create_client(ChangeState, f'{name}/change_state')
@@ -155,7 +155,7 @@ class Lifecycle:
 
 
 @pytest.fixture
-def rig(ros):  # noqa: F811 - the fixture from ros_helpers
+def rig(ros):
     """(driver node unconfigured, lifecycle client, wire) on a fresh virtual channel."""
     def make(**overrides):
         channel = _channel()
@@ -176,7 +176,7 @@ def rig(ros):  # noqa: F811 - the fixture from ros_helpers
 
 # ----------------------------------------------------------------------------- tests
 
-def test_unconfigured_inactive_active_inactive_unconfigured_and_again(ros, rig):  # noqa: F811
+def test_unconfigured_inactive_active_inactive_unconfigured_and_again(ros, rig):
     driver, lc, wire, probe = rig()
     js = ros.collect(probe, JointState, topics.JOINT_STATES)
     truth = {t: ros.collect(probe, m, t) for t, m in ((topics.SIM_JOINT_STATES, JointState),
@@ -277,7 +277,7 @@ def _trajectory(q0: np.ndarray, q1: np.ndarray, duration: float, node) -> object
 
 
 @pytest.mark.parametrize('start', ['unconfigured', 'inactive', 'active'])
-def test_shutdown_from_each_primary_state_disables_and_closes(ros, rig, start):  # noqa: F811
+def test_shutdown_from_each_primary_state_disables_and_closes(ros, rig, start):
     driver, lc, wire, probe = rig()
     transition = Transition.TRANSITION_UNCONFIGURED_SHUTDOWN
     if start != 'unconfigured':
@@ -300,7 +300,7 @@ def test_shutdown_from_each_primary_state_disables_and_closes(ros, rig, start): 
     assert not res.success and 'finalized' in res.message
 
 
-def test_deactivate_is_refused_while_a_protective_stop_holds_the_load(ros, rig):  # noqa: F811
+def test_deactivate_is_refused_while_a_protective_stop_holds_the_load(ros, rig):
     """SAFETY.md 15: with a latched stop the drives hold in QUICK STOP ACTIVE; relieve and
     recover need the node active, so deactivate is refused (the node stays active)."""
     driver, lc, wire, probe = rig()
@@ -323,7 +323,7 @@ def test_deactivate_is_refused_while_a_protective_stop_holds_the_load(ros, rig):
     assert lc.state() == (State.PRIMARY_STATE_INACTIVE, 'inactive')
 
 
-def test_a_drive_that_does_not_answer_fails_configure_cleanly(ros, rig, capfd):  # noqa: F811
+def test_a_drive_that_does_not_answer_fails_configure_cleanly(ros, rig, capfd):
     driver, lc, wire, probe = rig(**{'can.boot_timeout': 0.5})
     assert lc.set(Transition.TRANSITION_CONFIGURE)
     assert lc.set(Transition.TRANSITION_CLEANUP)
@@ -342,7 +342,7 @@ def test_a_drive_that_does_not_answer_fails_configure_cleanly(ros, rig, capfd): 
     assert lc.state() == (State.PRIMARY_STATE_INACTIVE, 'inactive')
 
 
-def test_a_bus_that_does_not_open_fails_configure_naming_it(ros, rig, capfd):  # noqa: F811
+def test_a_bus_that_does_not_open_fails_configure_naming_it(ros, rig, capfd):
     driver, lc, wire, probe = rig(**{'can.sim': False, 'can.interface': 'no_such_interface'})
     assert not lc.set(Transition.TRANSITION_CONFIGURE)
     assert lc.state() == (State.PRIMARY_STATE_UNCONFIGURED, 'unconfigured')
@@ -351,7 +351,7 @@ def test_a_bus_that_does_not_open_fails_configure_naming_it(ros, rig, capfd):  #
     assert lc.set(Transition.TRANSITION_UNCONFIGURED_SHUTDOWN)
 
 
-def test_the_driver_builds_one_mechanism_model(ros, monkeypatch):  # noqa: F811
+def test_the_driver_builds_one_mechanism_model(ros, monkeypatch):
     """Node, master (home lengths, actuator ranges) and simulated brace share one model; the
     simulator's physics has its own (stroke widened 1 cm), a different mechanism."""
     import brace_control.mechanisms as mechanisms
@@ -376,7 +376,7 @@ def test_the_driver_builds_one_mechanism_model(ros, monkeypatch):  # noqa: F811
 
 
 @pytest.mark.slow
-def test_manual_lifecycle_process_waits_unconfigured_for_ros2_lifecycle(ros):  # noqa: F811
+def test_manual_lifecycle_process_waits_unconfigured_for_ros2_lifecycle(ros):
     """``brace-bringup --processes --manual-lifecycle``: the driver process stays
     unconfigured until a ChangeState call; SIGINT then ends it with exit code 0."""
     from brace_control.bringup import ProcessBringUp
