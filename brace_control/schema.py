@@ -181,7 +181,7 @@ SCHEMA: dict[str, Param] = {
     'can.homing_method': _ro(35, 'CiA 402 homing method 6098h', (-128, 127)),
     'can.frame_log': _ro('', 'python-can log of the bus (.asc/.blf/.log), empty = none'),
     'can.sim': _ro(True, 'start the simulated brace on the bus'),
-    'can.sync_spin_us': _ro(300, 'SYNC thread: busy-wait before each deadline', (0, 5000), 'us'),
+    'can.sync_spin_us': _ro(0, 'SYNC thread: busy-wait before each deadline (0: sleep only)', (0, 5000), 'us'),
     'can.sync_thread_priority': _ro(0, 'SCHED_FIFO priority of the SYNC thread, 0 = normal scheduling '
                                     '(needs CAP_SYS_NICE)', (0, 99)),
     'can.gil_switch_interval_us': _ro(200, "driver process: Python's GIL switch interval, 0 = keep "

@@ -155,11 +155,9 @@ def device_file(tmp_path_factory) -> Path:
 
 
 def _extra_args() -> list[str]:
-    # the SYNC thread sleeps instead of spinning its last 300 us: on this 2-core machine the
-    # spin takes a core share the nodes and the simulator need (safety limits unchanged);
     # the truth at 100 Hz so that a short force spike cannot fall between two samples
     return ['-p', f'can.channel:=e2e{next(_channels)}', '-p', 'trajectory.fitts_a:=1.0',
-            '-p', 'can.sync_spin_us:=0', '-p', 'sim.truth_rate_hz:=100.0']
+            '-p', 'sim.truth_rate_hz:=100.0']
 
 
 # ----------------------------------------------------------------------------- probe

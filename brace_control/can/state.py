@@ -70,7 +70,7 @@ class MasterConfig:
     #: N/m (N·m/rad): each actuator's axial stiffness with its load path (``actuator.stiffness``);
     #: a relief's force gain comes from it
     stiffness: float = 1.0e6
-    spin_s: float = 0.0003           # busy-wait before each SYNC deadline
+    spin_s: float = 0.0              # busy-wait before each SYNC deadline (0: sleep only)
     send_timeout: float = 0.0005     # never block the cycle on a full TX queue
     transition_timeout: float = 1.0  # s for a 402 transition of all drives
     thread_priority: int = 0         # SCHED_FIFO priority of the SYNC thread (0: normal)
