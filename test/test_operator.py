@@ -270,14 +270,20 @@ def check_one_end_each(op: Operator, first: int = 1, last: int | None = None) ->
 UNREACHABLE = (0.0, 0.50, 5.0 * DEG)
 
 
+#: the reasons a goal ends while the nodes have not all matched each other yet
+NOT_YET_MATCHED = ('did not start', 'nothing subscribes to', 'no pose estimate')
+
+
 def wait_ready(op: Operator, *, chain: bool = False, timeout: float = 30.0) -> None:
     """Wait until the trajectory node knows the drives are enabled: an unreachable goal is
     then rejected as unreachable, not because "the drives are not enabled". With ``chain``
     (after bring-up) also until a goal travels the whole chain: a goal to the hold (home,
     no motion) succeeds. Each node matches the others' endpoints in its own DDS discovery;
     the probe seeing every link in the graph (:func:`wait_for_links`) does not mean they
-    have, and a plan published before the ik node or the driver matched is lost (volatile):
-    "the driver did not start the motion"."""
+    have: a goal is rejected while the trajectory node has not matched the ik node ("nothing
+    subscribes to /brace/pose_trajectory"), a plan published before the driver matched is
+    lost (volatile: "the driver did not start the motion"), and a goal can end before the
+    trajectory node matched kinetics_node ("no pose estimate")."""
     deadline = time.monotonic() + timeout
     lost = []
     while True:
@@ -293,7 +299,8 @@ def wait_ready(op: Operator, *, chain: bool = False, timeout: float = 30.0) -> N
         if end['state'] == 'succeeded':
             break
         lost.append(end['reason'])
-        assert 'did not start' in end['reason'] and time.monotonic() < deadline, (end, lost, op.evidence())
+        assert any(r in end['reason'] for r in NOT_YET_MATCHED) and time.monotonic() < deadline, \
+            (end, lost, op.evidence())
     if lost:
         print(f'not ready after wait_for_links: {len(lost)} goal(s) {sorted(set(lost))}')
 
