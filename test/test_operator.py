@@ -44,7 +44,7 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from sensor_msgs.msg import JointState
 
-from brace_control.bringup import ProcessBringUp, call_trigger, wait_for_links
+from brace_control.bringup import ProcessBringUp, call_trigger, wait_for_links, wait_until_ready
 from brace_control.nodes import topics
 from brace_control.nodes.msgs import joint_state, ns_to_stamp, pose_msg, stamp_to_ns, status_values
 from test_e2e import (DEG, Device, Probe, _extra_args, _planar, check_no_stop, check_self_stress,
@@ -330,6 +330,7 @@ def operator_stack(device_file: Path, extra_args: Sequence[str] = ()) -> Iterato
                 time.sleep(0.2)
             assert ok, f'{what}: {msg}; ended: {group.failed()}'
         wait_for_links(node, timeout=30)
+        wait_until_ready(node, timeout=30)    # each node process matched its downstream
         op.wait_state('enabled')
         wait_ready(op, chain=True)
         yield op
