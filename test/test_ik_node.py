@@ -110,7 +110,11 @@ def test_no_setpoint_dropped_at_200_hz(rig):
     for k in range(n):
         pose = [0.01 + 0.01 * math.sin(k / 50), 0.39, 0.03]
         pub.publish(setpoint(pose, t=10.0 + k * period))
-        while time.monotonic() < t0 + (k + 1) * period:
+        # 200 Hz, but never more than 5 ahead of what came out: the queues hold 10 (the
+        # rate a loaded host can sustain is a benchmark's question, not this test's)
+        deadline = time.monotonic() + 5.0
+        while (time.monotonic() < t0 + (k + 1) * period or len(out) < k + 1 - 5) \
+                and time.monotonic() < deadline:
             ros.executor.spin_once(timeout_sec=0.001)
     ros.spin_until(lambda: len(out) == n, timeout=10, what=f'{n} setpoints')
     stamps = [stamp_to_ns(m.header.stamp) for m in out]
