@@ -425,6 +425,24 @@ class SimulatedDrive:
                         and self._store[(0x6061, 0)] == MODE_CSP:
                     self._start_segment()
 
+    def heartbeat_due(self, now: float) -> None:
+        """Send the heartbeat (1017h) if it is due: from the timer, and on every SYNC (a real
+        drive's producer does not wait for a host thread; see :mod:`brace_control.sim.host`)."""
+        if self.disconnected or now < self._next_hb:
+            return
+        with self.lock:
+            self._produce_heartbeat(now)
+
+    def _produce_heartbeat(self, now: float) -> None:
+        if now >= self._next_hb:
+            if not self.heartbeat_silenced:
+                self._tx(0x700 + self.node_id, bytes((int(self.nmt_state),)))
+            if self.hb_period_s > 0:
+                nxt_hb = self._next_hb + self.hb_period_s
+                self._next_hb = nxt_hb if nxt_hb > now else now + self.hb_period_s
+            else:
+                self._next_hb = math.inf
+
     def tick(self, now: float) -> float:
         """Timers: heartbeat producer, heartbeat consumer, TPDO event timers.
 
@@ -433,14 +451,7 @@ class SimulatedDrive:
         if self.disconnected:
             return now + 0.05
         with self.lock:
-            if now >= self._next_hb:
-                if not self.heartbeat_silenced:
-                    self._tx(0x700 + self.node_id, bytes((int(self.nmt_state),)))
-                if self.hb_period_s > 0:
-                    nxt_hb = self._next_hb + self.hb_period_s
-                    self._next_hb = nxt_hb if nxt_hb > now else now + self.hb_period_s
-                else:
-                    self._next_hb = math.inf
+            self._produce_heartbeat(now)
             if now >= self._hb_deadline:
                 self._hb_deadline = math.inf
                 self._on_master_heartbeat_lost()

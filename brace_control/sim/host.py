@@ -16,6 +16,10 @@ have stood still for that time (:meth:`SimulatedDrive.host_stalled`), as the phy
 period), and the nodes freeze their start-up heap out of the collector
 (:func:`brace_control.nodes.runner.freeze_start_up_heap`). A master that stops while this
 process runs (its thread stuck, the heartbeat silenced) still trips the drives on time.
+The other way round, the drives' own heartbeats (1017h) go out from whichever simulator
+thread runs first, the timer or the SYNC handling: a real drive's producer does not wait
+for a host thread, and the master must not see a drive vanish because the simulator's timer
+thread waited for the GIL.
 
 Bus-off of the simulated side (:attr:`SimBus.bus_off`): the drives neither send nor
 receive (see :mod:`brace_control.sim.faults` for the master's side).
@@ -208,6 +212,8 @@ class SimBus:
                     d.on_sync(dt)
         except Exception:   # noqa: BLE001 - never kill the Notifier thread
             log.exception('simulated SYNC handling failed')
+        for d in self.drives:             # heartbeats also from here: see the module docstring
+            d.heartbeat_due(now)
 
     # ------------------------------------------------------------------ timers
 
