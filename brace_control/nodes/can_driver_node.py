@@ -56,8 +56,11 @@ subscribes to it):
 * ``/brace/sim/wrench`` (``WrenchStamped`` in ``platform_frame``): the wrench the brace
   applies to the body, in ``/brace/wrench``'s convention (the mechanism's ``wrench`` of
   the true pose and efforts);
+* ``/brace/sim/body_pose`` (``PoseStamped`` in ``base_frame``): where the simulated
+  patient's trunk wants to be now (its rest pose plus the sway ``sim.sway_*``);
 * and it subscribes ``/brace/sim/body_rest`` (``PoseStamped``): where the simulated
-  patient's body rests (the body's stiffness pulls the ring towards it).
+  patient's body rests (the body's stiffness pulls the ring towards it; the sway is
+  added on top).
 
 In-process use (one-process bring-up, tests)::
 
@@ -232,7 +235,8 @@ class CanDriverNode(Node):
                                  topics.STATE_QOS, callback_group=self._stream_group)
         self._truth_pubs = (self.create_publisher(JointState, topics.SIM_JOINT_STATES, topics.STATE_QOS),
                             self.create_publisher(PoseStamped, topics.SIM_POSE, topics.STATE_QOS),
-                            self.create_publisher(WrenchStamped, topics.SIM_WRENCH, topics.STATE_QOS))
+                            self.create_publisher(WrenchStamped, topics.SIM_WRENCH, topics.STATE_QOS),
+                            self.create_publisher(PoseStamped, topics.SIM_BODY_POSE, topics.STATE_QOS))
         kind = pose_kind(self.mechanism)
         base, platform = self.cfg['base_frame'], self.cfg['platform_frame']
         last_wrench: list[Any] = [None, None]       # (pose, efforts) bytes, the platform wrench
@@ -246,10 +250,13 @@ class CanDriverNode(Node):
             truth = self.sim.truth_at(wall) if wall and time.time() - wall < 0.1 else self.sim.truth()
             stamp = ns_to_stamp(round(truth.stamp * 1e9) if truth.stamp else
                                 self.get_clock().now().nanoseconds)
-            js_pub, pose_pub, wrench_pub = self._truth_pubs
+            js_pub, pose_pub, wrench_pub, body_pub = self._truth_pubs
             js_pub.publish(joint_state(self.names, position=truth.lengths, velocity=truth.velocities,
                                        effort=truth.forces, stamp=stamp))
             pose_pub.publish(pose_msg(truth.pose, frame_id=base, stamp=stamp, mechanism=self.mechanism))
+            if truth.body_pose is not None:
+                body_pub.publish(pose_msg(truth.body_pose, frame_id=base, stamp=stamp,
+                                          mechanism=self.mechanism))
             # a pure function of (pose, efforts), which at rest repeat bit for bit: computed
             # again only when they changed
             key = (truth.pose.tobytes(), truth.forces.tobytes())

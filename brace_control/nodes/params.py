@@ -150,6 +150,24 @@ SCHEMA: dict[str, Param] = {
     'sim.drive_bandwidth_hz': Param(30.0, 'position-loop bandwidth of the simulated CSP drives (Hz), '
                                     'Kp = 2 pi x bandwidth', (1.0, 500.0), True),
     'sim.truth_rate_hz': Param(20.0, 'rate of the ground-truth topics /brace/sim/* (Hz)', (0.1, 1000.0), True),
+    # the simulated patient (brace_control/sim/brace.py, docs/interaction.md)
+    'sim.sway_amplitude': Param([0.0], "amplitude of the patient's sway per pose axis (m, rad; [0.0]: none)",
+                                read_only=True),
+    'sim.sway_frequency_hz': Param(0.0, "frequency of the patient's sway (Hz; 0: none)", (0.0, 20.0), True),
+    'sim.sway_phase': Param([0.0], "phase of the sway per pose axis (rad; [0.0]: all zero)", read_only=True),
+    'sim.patient_max_wrench': Param([0.0], "the patient's largest effort per pose axis (N, N·m; 0: no limit)",
+                                    read_only=True),
+    # interaction_node: admittance control (brace_control/interaction, docs/interaction.md)
+    'interaction.force_axes': Param([False], 'per pose axis: force controlled (true) or held (false)',
+                                    read_only=True),
+    'interaction.mass': Param([1.0], 'virtual mass per pose axis (kg, kg·m²)', read_only=True),
+    'interaction.damping': Param([100.0], 'virtual damping per pose axis (N·s/m, N·m·s/rad)', read_only=True),
+    'interaction.rate_hz': Param(200.0, 'admittance update and setpoint rate (Hz)', (10.0, 2000.0), True),
+    'interaction.max_goal_wrench': Param([0.0], 'largest |wrench goal| per pose axis (N, N·m; 0: the '
+                                         "mechanism's wrench capacity alone)", read_only=True),
+    'interaction.stop_deceleration': Param([0.1], 'deceleration to rest on ~/stop per pose axis '
+                                           '(m/s², rad/s²)', read_only=True),
+    'interaction.wrench_timeout': Param(0.05, 'no /brace/wrench for this long -> stop (s)', (0.005, 5.0), True),
 }
 
 
