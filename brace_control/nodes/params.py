@@ -167,7 +167,7 @@ SCHEMA: dict[str, Param] = {
                                          "mechanism's wrench capacity alone)", read_only=True),
     'interaction.stop_deceleration': Param([0.1], 'deceleration to rest on ~/stop per pose axis '
                                            '(m/s², rad/s²)', read_only=True),
-    'interaction.wrench_timeout': Param(0.05, 'no /brace/wrench for this long -> stop (s)', (0.005, 5.0), True),
+    'interaction.wrench_timeout': Param(0.1, 'no /brace/wrench for this long -> stop (s)', (0.005, 5.0), True),
 }
 
 

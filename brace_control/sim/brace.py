@@ -379,6 +379,27 @@ class SimulatedBrace:
         self.patient_max_wrench = np.where(limit > 0.0, limit, np.inf)
         self._swaying = bool(np.any(self.sway_amplitude != 0.0)) and self.sway_frequency_hz > 0.0
 
+    def set_sway(self, amplitude: Any, frequency_hz: float, phase: Any = None) -> None:
+        """Start (or change, or with zero amplitude end) the patient's sway now: from the next
+        SYNC ``rest + A sin(2 pi f (t - t_now) + phi)``. Thread safe.
+
+        :raises ValueError: not ``dof`` finite amplitudes / phases, or a negative frequency.
+        """
+        a = np.asarray(amplitude, dtype=float).ravel()
+        ph = np.zeros(self.dof) if phase is None else np.asarray(phase, dtype=float).ravel()
+        if a.shape != (self.dof,) or ph.shape != (self.dof,) or not np.all(np.isfinite(a)) \
+                or not np.all(np.isfinite(ph)):
+            raise ValueError(f'sway: expected {self.dof} finite amplitudes and phases, got '
+                             f'{amplitude!r}, {phase!r}')
+        if not math.isfinite(frequency_hz) or frequency_hz < 0.0:
+            raise ValueError(f'sway frequency {frequency_hz!r}: expected a number >= 0 (Hz)')
+        with self.lock:
+            w = 2.0 * math.pi * float(frequency_hz)
+            self.sway_amplitude, self.sway_frequency_hz = a.copy(), float(frequency_hz)
+            self.sway_phase = ph - w * self._time          # t - t_now in the sine
+            self._swaying = bool(np.any(a != 0.0)) and frequency_hz > 0.0
+            self._static = None
+
     def body_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Where the patient's trunk wants to be at simulated time ``t`` (s) and its rate:
         ``rest + A sin(w t + phi)``, ``A w cos(w t + phi)``, ``w = 2 pi sim.sway_frequency_hz``."""
