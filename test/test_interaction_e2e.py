@@ -32,7 +32,10 @@ ROOT = Path(__file__).resolve().parent.parent
 LUMBAR = ROOT / 'config' / 'lumbar_brace.yaml'
 _channels = itertools.count()
 RELIABLE_10 = 10
-WORK_THETA = math.radians(10.0)       # the sway is centred here: 5-15 deg, clear of theta = 0
+#: the sway's centre: y 380 mm, theta 8 deg. In phase, +-10 mm and +-5 deg keep every leg
+#: 5.3 mm inside the 340-440 mm stroke and the capacity above trajectory.min_wrench_capacity
+#: (Mz >= 1.5 N·m at 3 deg); the paper's brace has no room for the sway at its 5 deg home
+WORK = (0.0, 0.380, math.radians(8.0))
 
 
 class Truth:
@@ -142,15 +145,16 @@ def test_zero_torque_mode_follows_a_swaying_patient_and_holds_wrench_goals(stack
     truth.wait_status(lambda s: s.message == 'started', 2, 'started')
     report: dict[str, float] = {}
 
-    # the patient leans to 10 deg over 2 s; the brace follows (x is held: no lateral capacity)
+    # the patient settles lower and leans to 8 deg over 2 s; the brace follows (x is held:
+    # no lateral capacity)
     rest0 = np.asarray(sim.rest_pose, dtype=float)
-    work = rest0.copy()
-    work[2] = WORK_THETA
+    work = np.array(WORK)
     t0 = time.monotonic()
     move_body(b, rest_pub, rest0, work, 2.0)
-    time.sleep(1.0)
+    time.sleep(1.5)
     tt, pose = truth.since(truth.pose, time.monotonic() - 0.3)
-    assert abs(pose[-1][2] - WORK_THETA) < math.radians(0.3), np.degrees(pose[-1])
+    assert abs(pose[-1][2] - work[2]) < math.radians(0.3), np.degrees(pose[-1])
+    assert abs(pose[-1][1] - work[1]) < 0.002, pose[-1]
     _, w = truth.since(truth.wrench, t0)
     report['lean_max_moment'] = float(np.max(np.abs(w[:, 2])))
 

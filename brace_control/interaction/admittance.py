@@ -22,8 +22,9 @@ Limits (SAFETY.md 5, 10, 14, 17), never a silent clamp:
 * the actuator speed: ``|J v|`` within ``limit_margin x actuator.max_velocity``: the velocity
   vector is scaled as a whole (the virtual model saturates; :attr:`AdmittanceController.
   velocity_limited` counts the periods, the node reports it);
-* the workspace, the stroke, a singularity, the wrench capacity: the pose the ring would
-  reach when braking now at ``interaction.stop_deceleration`` is checked at every period;
+* the workspace, the stroke (with :data:`STROKE_MARGIN` clear at both ends), a
+  singularity, the wrench capacity: the pose the ring would reach when braking now at
+  ``interaction.stop_deceleration`` is checked at every period;
   one that fails starts a stop (:class:`LimitStop` with the reason), so the ring comes to
   rest before the limit;
 * the soft force limit: a measured actuator force above it starts a stop;
@@ -44,6 +45,10 @@ from typing import Any
 import numpy as np
 
 from ..mechanisms import UnreachablePose
+
+#: share of each actuator's range kept clear at both ends: the ring must come to rest (on its
+#: braking pose) this far from a stroke end, so the drives' own limits (607Dh) never trip
+STROKE_MARGIN = 0.02
 
 __all__ = ['AdmittanceController', 'AdmittanceParams', 'GoalRejected', 'LimitStop', 'Mode']
 
@@ -291,15 +296,26 @@ class AdmittanceController:
         return 1.0
 
     def braking_pose(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """Where the ring comes to rest braking from ``(x, v)``: ``x + v |v| / (2 a)``."""
-        return x + v * np.abs(v) / (2.0 * self.p.stop_deceleration)
+        """Where the ring comes to rest braking from ``(x, v)`` as :meth:`_brake` does (the
+        velocity vector shrinks as a whole, the most limited axis setting the pace): after
+        ``T = max_i |v_i| / a_i``, at ``x + v T / 2``."""
+        t_stop = float(np.max(np.abs(v) / self.p.stop_deceleration))
+        return x + 0.5 * v * t_stop
 
     def _check_ahead(self, x: np.ndarray, v: np.ndarray) -> str:
         """The reason the pose reached when braking from ``(x, v)`` is not allowed, or ''."""
         ahead = self.braking_pose(x, v)
+        lo, hi = (np.asarray(a, dtype=float) for a in self.mechanism.actuator_limits)
+        margin = STROKE_MARGIN * (hi - lo)
         for pose in (x, ahead):
             try:
-                self.mechanism.inverse(pose)
+                q = np.asarray(self.mechanism.inverse(pose), dtype=float)
+                near = (q < lo + margin) | (q > hi - margin)
+                if np.any(near):
+                    i = int(np.flatnonzero(near)[0])
+                    return (f'workspace: actuator {self._name(i)} would reach {q[i]:.4f}, within '
+                            f'{margin[i]:.4f} of its range {lo[i]:.4f}–{hi[i]:.4f} '
+                            f'(braking pose {np.round(pose, 5).tolist()})')
                 check = getattr(self.mechanism, 'check_singularity', None)
                 if callable(check):
                     check(pose)
