@@ -130,3 +130,17 @@ def test_a_rigid_device_feels_the_sway_and_the_effort_limit() -> None:
 def test_bad_patient_parameters_are_config_errors(key: str, value: object, words: str) -> None:
     with pytest.raises(ConfigError, match=words.replace('.', r'\.')):
         lumbar(**{key: value})
+
+
+def test_set_sway_starts_the_sine_now() -> None:
+    brace, params = lumbar()
+    run(brace, 100)                               # 0.2 s without sway
+    brace.set_sway([0.0, 0.004, 0.0], 1.0)
+    rest = np.asarray(params['sim']['rest_pose'])
+    for k in range(1, 101):
+        run(brace, 1)
+        tr = brace.truth()
+        expected = rest[1] + 0.004 * math.sin(2 * math.pi * k * DT)
+        assert tr.body_pose[1] == pytest.approx(expected, abs=1e-12)
+    with pytest.raises(ValueError, match='3 finite amplitudes'):
+        brace.set_sway([0.0, 0.01], 1.0)
