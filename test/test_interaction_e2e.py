@@ -47,10 +47,8 @@ class Truth:
         self.body: list[tuple[float, np.ndarray]] = []
         self.wrench: list[tuple[float, np.ndarray]] = []
         self.status: list[DiagnosticStatus] = []
-        self.setpoints: list[tuple[float, np.ndarray]] = []
         node.create_subscription(PoseStamped, topics.SIM_POSE, self._pose(self.pose), RELIABLE_10)
         node.create_subscription(PoseStamped, topics.SIM_BODY_POSE, self._pose(self.body), RELIABLE_10)
-        node.create_subscription(PoseStamped, topics.POSE_SETPOINT, self._pose(self.setpoints), 50)
         node.create_subscription(WrenchStamped, topics.SIM_WRENCH, self._on_wrench, RELIABLE_10)
         node.create_subscription(DiagnosticStatus, topics.GOAL_STATUS, self._on_status, topics.STATUS_QOS)
 
@@ -140,6 +138,17 @@ def test_zero_torque_mode_follows_a_swaying_patient_and_holds_wrench_goals(stack
     rest_pub = b.helper.create_publisher(PoseStamped, topics.SIM_BODY_REST, topics.STATE_QOS)
     goal_pub = b.helper.create_publisher(WrenchStamped, topics.WRENCH_GOAL, topics.GOAL_QOS)
     wait(lambda: len(truth.pose) > 5 and len(truth.wrench) > 5, 10, 'the truth topics')
+    # the driver's command at every SYNC (the in-cycle admittance's output)
+    executor = b.node('can_driver_node').master.executor
+    commands: list[np.ndarray] = []
+    step = executor.step
+
+    def recording_step(t: float):
+        q, v = step(t)
+        if executor.source is not None:
+            commands.append(q)
+        return q, v
+    executor.step = recording_step
     ok, msg = trigger(b, 'start')
     assert ok, msg
     truth.wait_status(lambda s: s.message == 'started', 2, 'started')
@@ -158,9 +167,14 @@ def test_zero_torque_mode_follows_a_swaying_patient_and_holds_wrench_goals(stack
     _, w = truth.since(truth.wrench, t0)
     report['lean_max_moment'] = float(np.max(np.abs(w[:, 2])))
 
-    # sway +-10 mm vertically and +-5 deg at 0.5 Hz, then 0.2 Hz
-    for f_hz, periods in ((0.5, 3), (0.2, 1.5)):
-        sim.set_sway([0.0, 0.010, math.radians(5.0)], f_hz)
+    # sway +-10 mm vertically and +-5 deg at 0.5 Hz, then 0.2 Hz. At 0.5 Hz one at a time: in
+    # phase (or any phase) the two need 62-85 mm/s of leg speed, beyond the paper's actuators
+    # (0.065 m/s, Table II; 0.052 m/s with trajectory.limit_margin); the rotation alone needs
+    # 53 mm/s (a1, a3: the ring is speed limited for a moment at the sine's zero crossings)
+    for f_hz, periods, amp, tag in ((0.5, 3, [0.0, 0.010, 0.0], '0.5 Hz y'),
+                                    (0.5, 3, [0.0, 0.0, math.radians(5.0)], '0.5 Hz theta'),
+                                    (0.2, 1.5, [0.0, 0.010, math.radians(5.0)], '0.2 Hz')):
+        sim.set_sway(amp, f_hz)
         t_start = time.monotonic()
         time.sleep(periods / f_hz)
         sim.set_sway([0.0, 0.0, 0.0], 0.0)
@@ -170,10 +184,10 @@ def test_zero_torque_mode_follows_a_swaying_patient_and_holds_wrench_goals(stack
         tb, body = truth.since(truth.body, t_skip)
         m = min(len(pose), len(body))
         err = np.abs(pose[:m] - body[:m])
-        report[f'{f_hz} Hz max |Fy| N'] = float(np.max(np.abs(w[:, 1])))
-        report[f'{f_hz} Hz max |Mz| N.m'] = float(np.max(np.abs(w[:, 2])))
-        report[f'{f_hz} Hz max |y_ring - y_body| mm'] = float(np.max(err[:, 1]) * 1e3)
-        report[f'{f_hz} Hz max |th_ring - th_body| deg'] = float(np.degrees(np.max(err[:, 2])))
+        report[f'{tag} max |Fy| N'] = float(np.max(np.abs(w[:, 1])))
+        report[f'{tag} max |Mz| N.m'] = float(np.max(np.abs(w[:, 2])))
+        report[f'{tag} max |y_ring - y_body| mm'] = float(np.max(err[:, 1]) * 1e3)
+        report[f'{tag} max |th_ring - th_body| deg'] = float(np.degrees(np.max(err[:, 2])))
         time.sleep(1.0)
     # the brace stayed in interaction mode throughout (no limit, no fault)
     assert not [s for s in truth.status if s.message in ('aborted', 'stopping')], \
@@ -209,20 +223,37 @@ def test_zero_torque_mode_follows_a_swaying_patient_and_holds_wrench_goals(stack
         goal_pub.publish(zero)
         time.sleep(1.5)
 
+    print('\ninteraction e2e (truth), before the stop:', {k: round(v, 3) for k, v in report.items()})
     ok, msg = trigger(b, 'stop')
     assert ok, msg
     truth.wait_status(lambda s: s.message == 'stopped', 5, 'stopped')
+    # continuity: the driver's command (the admittance in the SYNC cycle) never steps or
+    # accelerates beyond the actuator limits (SAFETY 7: no jump at start, goal or stop)
+    cmd = np.array(commands)
+    period = 1.0 / float(b.config['can']['sync_rate_hz'])
+    vel = np.diff(cmd, axis=0) / period
+    report['max command speed mm/s'] = float(np.max(np.abs(vel)) * 1e3)
+    acc = np.abs(np.diff(vel, axis=0)) / period
+    report['max command acceleration m/s2'] = float(np.max(acc))
+    k = int(np.argmax(np.max(acc, axis=1)))
+    print('max acceleration at command', k, 'of', len(cmd), np.round(vel[max(0, k - 3):k + 4] * 1e3, 2))
     print('\ninteraction e2e (truth):')
     for k, v in report.items():
         print(f'  {k}: {v:.3f}')
-    # continuity: the setpoint stream never steps further than the speed limit allows
-    _, sp = truth.since(truth.setpoints, 0.0)
-    steps = np.abs(np.diff(sp, axis=0))
-    report['max setpoint step y mm'] = float(np.max(steps[:, 1]) * 1e3)
-    assert np.max(steps[:, 1]) < 0.065 * 0.005 * 1.5
-    # the honest bounds of the design (docs/interaction.md): the wrench goal settles within
-    # 1 s with <= 10 % overshoot; the sway is followed within the loop's stable envelope
-    assert report['Fy 30 N settling s (5 %)'] <= 1.0, report
-    assert report['Fy 30 N overshoot %'] <= 10.0, report
-    assert report['0.5 Hz max |Fy| N'] < 40.0, report       # a held ring would feel 40 N
-    assert report['0.5 Hz max |Mz| N.m'] < 3.5, report      # and 3.5 N·m
+    v_max = float(b.config['actuator']['max_velocity'])
+    a_max = float(b.config['actuator']['max_acceleration'])
+    assert report['max command speed mm/s'] <= v_max * 1e3, report
+    assert report['max command acceleration m/s2'] <= a_max * 1.001, report
+    # issue 14's targets (docs/interaction.md, "Measured")
+    for tag in ('0.5 Hz y', '0.5 Hz theta', '0.2 Hz'):
+        assert report[f'{tag} max |Fy| N'] < 5.0, report
+        assert report[f'{tag} max |Mz| N.m'] < 0.5, report
+        assert report[f'{tag} max |y_ring - y_body| mm'] < 2.0, report
+        # target 0.3 deg, not reachable with 45 deg of phase margin at 4 x the body's
+        # stiffness: following at w A costs D_theta w A = 1.43 x 0.274 = 0.39 N·m, which the
+        # trunk's 40 N·m/rad turns into 0.56 deg (0.3 deg needs D_theta < 0.77, i.e. < 30 deg
+        # at 4 x K even with no delay jitter; docs/interaction.md, "The trade-off")
+        assert report[f'{tag} max |th_ring - th_body| deg'] < 0.8, report
+    for name in ('Fy 30 N', 'Mz 2 N.m'):
+        assert report[f'{name} settling s (5 %)'] <= 1.0, report
+        assert report[f'{name} overshoot %'] <= 10.0, report

@@ -121,7 +121,8 @@ class CanDriverNode(Node):
         self.sim: Any = None
         self.master: BraceMaster | None = None
         super().__init__(node_name, **kwargs)
-        self.cfg = declare_device_parameters(self, ('mechanism', 'actuator', 'can', 'safety', 'sim'))
+        self.cfg = declare_device_parameters(self, ('mechanism', 'actuator', 'can', 'safety', 'sim',
+                                                     'trajectory', 'interaction'))
         self.names: tuple[str, ...] = tuple(self.cfg['mechanism']['actuator_names'])
         self.mechanism = self._mechanism()
         self.master_config = MasterConfig.from_device_config(self.cfg)
@@ -173,6 +174,7 @@ class CanDriverNode(Node):
                          ('recover', self._recover), ('home', self._home), ('relieve', self._relieve)):
             self.create_service(Trigger, f'~/{name}', self._trigger(name, fn),
                                 callback_group=self._service_group)
+        self._init_interaction()
         rate = float(self.cfg['can']['joint_state_rate_hz'])
         self._js_timer = self.create_timer(1.0 / rate, timer_callback(self._publish_joint_states),
                                            callback_group=self._stream_group)
@@ -327,6 +329,69 @@ class CanDriverNode(Node):
             return
         self.accepted += 1
 
+    # ------------------------------------------------------------------ interaction (in the cycle)
+
+    def _init_interaction(self) -> None:
+        """The in-cycle admittance's interface (docs/interaction.md): services
+        ``~/interaction_start`` / ``~/interaction_stop`` (Trigger) and the goal topic
+        ``/brace/interaction/goal``; its events go out on ``/brace/execution_status`` as
+        ``can_driver_node/interaction/<session>``. interaction_node is the user-facing side."""
+        from geometry_msgs.msg import WrenchStamped
+        self._interaction_sessions = 0
+        self.create_service(Trigger, '~/interaction_start', self._on_interaction_start,
+                            callback_group=self._stream_group)
+        self.create_service(Trigger, '~/interaction_stop', self._on_interaction_stop,
+                            callback_group=self._stream_group)
+        self.create_subscription(WrenchStamped, topics.INTERACTION_GOAL, self._on_interaction_goal,
+                                 topics.GOAL_QOS, callback_group=self._stream_group)
+
+    def _interaction_source(self) -> Any:
+        from ..interaction import AdmittanceParams
+        from ..interaction.inloop import InLoopAdmittance
+        params = AdmittanceParams.from_config(self.cfg, self.mechanism)
+        return InLoopAdmittance(self.mechanism, params, sync_period=self.master_config.period,
+                                a_max=self.master_config.limits.a_max)
+
+    def _on_interaction_start(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        if self.mechanism is None:
+            response.success, response.message = False, 'no mechanism model: no interaction'
+            return response
+        try:
+            source = self._interaction_source()
+        except (ValueError, KeyError) as exc:
+            response.success, response.message = False, f'interaction parameters: {exc}'
+            return response
+        self._interaction_sessions += 1
+        tag = self._interaction_sessions
+        why = self.master.start_interaction(source, tag)
+        response.success = why is None
+        response.message = (f'interaction {tag} started at {source.dt * 1e3:g} ms '
+                            f'({source.n_syncs} SYNC)' if why is None else why)
+        self.publish_events()
+        return response
+
+    def _on_interaction_stop(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        self.master.stop_interaction('stop requested')
+        response.success, response.message = True, 'decelerating to rest'
+        self.publish_events()
+        return response
+
+    def _on_interaction_goal(self, msg: Any) -> None:
+        """The wrench goal in pose-axis components (interaction_node checked it; the
+        controller checks again against the pose it is at; a rejection is an event)."""
+        from ..interaction import GoalRejected
+        from .msgs import pose_kind
+        kind = pose_kind(self.mechanism)
+        f, t = msg.wrench.force, msg.wrench.torque
+        w = {'spherical': [t.x, t.y, t.z], 'planar': [f.x, f.y, t.z], 'xy': [f.x, f.y]}.get(kind, [f.x])
+        try:
+            self.master.set_interaction_goal(w)
+        except (ValueError, GoalRejected) as exc:
+            tag = self._interaction_sessions
+            self._exec_pub.publish(status_msg(f'{self.get_name()}/interaction/{tag}', 'goal_rejected',
+                                              level=DiagnosticStatus.WARN, stamp=tag, kind='goal_rejected',
+                                              reason=str(exc), goal=list(w)))
+
     # ------------------------------------------------------------------ planned motions
 
     def _on_trajectory(self, msg: JointTrajectory) -> None:
@@ -360,7 +425,7 @@ class CanDriverNode(Node):
             level = (DiagnosticStatus.ERROR if e.kind == 'rejected' or 'protective stop' in e.reason
                      else DiagnosticStatus.WARN if e.kind == 'stopped' else DiagnosticStatus.OK)
             self._exec_pub.publish(status_msg(
-                f'{self.get_name()}/trajectory/{e.tag}', e.kind, level=level, stamp=e.tag,
+                f'{self.get_name()}/{e.motion}/{e.tag}', e.kind, level=level, stamp=e.tag,
                 kind=e.kind, reason=e.reason, positions=list(e.positions),
                 time=self._ros_minus_perf_ns + round(e.time * 1e9), lag=e.lag))
         self.publish_state()
