@@ -465,9 +465,10 @@ def _step_bounds(rec: Record, t0: float) -> tuple[float, float, float]:
 
 
 def _setpoint_excess(rec: Record, t0: float) -> tuple[int, float]:
-    """How many actuator setpoints since ``t0``, and the largest step between consecutive
-    ones beyond ``actuator.max_velocity x`` their stamp interval (m): the driver's step rule
-    allows ``safety.step_margin``."""
+    """How many actuator setpoints (``/brace/actuator_setpoint``) since ``t0``, and the
+    largest step between consecutive ones beyond ``actuator.max_velocity x`` their stamp
+    interval (m): the driver's step rule allows ``safety.step_margin``. A stack whose
+    admittance runs inside the driver streams none: ``(0, nan)``."""
     with rec.lock:
         sp = sorted((s * 1e-9, p) for t, s, p in rec.setpoints if t >= t0)
     if len(sp) < 2:
@@ -481,10 +482,11 @@ def _setpoint_excess(rec: Record, t0: float) -> tuple[int, float]:
 
 def test_start_at_rest_and_stop_while_moving_have_no_step(stack):
     """position -> interaction: ``~/start`` after a position goal, then the patient moves the
-    ring; interaction -> rest: ``~/stop`` while the ring moves with the trunk. The actuator
-    setpoint stream never steps beyond the driver's step rule, and across each switch the
-    true actuator velocities and forces change by no more per truth sample than
-    :func:`_step_bounds` allows."""
+    ring; interaction -> rest: ``~/stop`` while the ring moves with the trunk. The true
+    actuators never move faster than actuator.max_velocity (a step in the command would show
+    as a jump), a setpoint stream (if the stack uses one) never steps beyond the driver's
+    step rule, and across each switch the true actuator velocities and forces change by no
+    more per truth sample than :func:`_step_bounds` allows."""
     b, rec = stack
     patient = Patient(b)
     reset(b, rec, patient)
@@ -510,21 +512,28 @@ def test_start_at_rest_and_stop_while_moving_have_no_step(stack):
     steps = _largest_steps(rec, t0, instants)
     dt, dv_bound, df_bound = _step_bounds(rec, t0)
     count, excess = _setpoint_excess(rec, t0)
+    ts, q, _, _ = rec.joints_between(t0)
+    gap = np.diff(ts)
+    new = gap > 0                                         # a stamp published twice counts once
+    speed = float(np.max(np.abs(np.diff(q, axis=0))[new] / gap[new][:, None]))
     print(f'\ntransitions (truth every {dt * 1e3:.0f} ms): ' + ', '.join(
         f'{k}: |dv| {dv * 1e3:.2f} mm/s, |df| {df:.2f} N' for k, (dv, df) in steps.items())
-        + f'; bounds {dv_bound * 1e3:.1f} mm/s, {df_bound:.1f} N; {count} setpoints, largest step beyond '
-          f'v_max dt {excess * 1e6:.1f} um (step_margin {STEP_MARGIN * 1e6:.0f} um)')
-    assert count > 50 and excess <= STEP_MARGIN
+        + f'; bounds {dv_bound * 1e3:.1f} mm/s, {df_bound:.1f} N; true speed max {speed * 1e3:.1f} mm/s; '
+          f'{count} setpoints, largest step beyond v_max dt {excess * 1e6:.1f} um '
+          f'(step_margin {STEP_MARGIN * 1e6:.0f} um)')
+    assert speed <= V_MAX
+    if count:                                             # the stream, where there is one
+        assert excess <= STEP_MARGIN
     for name, (dv, df) in steps.items():
         assert dv <= dv_bound, (name, dv)
         assert df <= df_bound, (name, df)
 
 
-@pytest.mark.xfail(reason='found by this test (h/interaction, a9354e8..a1d7b48): the goal aborts, "its motion '
-                          'was rejected: its start is 9.0 mm (or mrad) from the command on joint 1, more than '
-                          'the splice tolerance 5.000"; the planned start is not where the interaction has '
-                          'moved the ring (with the previous goal at home instead of the lean it passed)',
-                   strict=False)
+@pytest.mark.xfail(reason='found by this test (h/interaction at a1d7b48 and at 958dd23, admittance in the '
+                          'driver): the goal aborts, "its motion was rejected: its start is 5.7-9.0 mm (or '
+                          'mrad) from the command on joint 1, more than the splice tolerance 5.000": the '
+                          'planned start is not where the interaction has moved the ring (with the previous '
+                          'goal at home instead of the lean it passed)', strict=False)
 def test_a_position_goal_takes_over_from_a_moving_interaction_without_a_step(stack):
     """interaction -> position: a goal arrives while the patient moves the ring. The mode
     ends "aborted: a position goal arrived", the goal succeeds, and across the switch the
