@@ -11,7 +11,8 @@ against the simulator's truth (issue 14, docs/interaction.md):
 2. ``/interaction_node/start``: zero-torque mode;
 3. the simulated patient (the demo publishes the trunk's rest pose on
    ``/brace/sim/body_rest`` at :data:`PATIENT_RATE_HZ`) leans to the sway's centre, sways
-   (:class:`Script`: per force-controlled pose axis, in phase, a whole number of periods)
+   (:class:`Script`: per force-controlled pose axis, a whole number of periods, as fast as
+   the actuators allow: the lumbar brace sways +-10 mm and +-5 deg at 0.2 Hz)
    and settles; the brace follows;
 4. a wrench-goal step on ``/brace/wrench_goal`` (lumbar: 30 N vertical, base frame) and
    back to zero;
@@ -65,6 +66,15 @@ PATIENT_RATE_HZ = 50.0
 #: force-controlled axes sway): issue 14's +-10 mm vertically, +-5 deg in rotation
 SWAY = {'planar': (0.005, 0.010, math.radians(5.0)), 'xy': (0.010, 0.010), 'path': (0.010,),
         'spherical': (math.radians(5.0),) * 3}
+#: the sway's phase per pose axis (rad). The lumbar brace's a1 and a3 move ``y' -+ r2 theta'``:
+#: +-10 mm and +-5 deg need, in phase, 34 mm/s of a3 at 0.2 Hz, 51 mm/s at 0.3 Hz and 85 mm/s
+#: at 0.5 Hz (a quarter period apart: 25, 37, 62 mm/s, but then the stroke has no room for
+#: +-5 deg); the actuators' 65 mm/s with the 80 % margin is 52 mm/s
+SWAY_PHASE = {'planar': (0.0, 0.0, 0.0), 'xy': (0.0, 0.5 * math.pi), 'path': (0.0,),
+              'spherical': (0.0, 0.5 * math.pi, math.pi)}
+#: share of the actuator speed the sway may need (of ``limit_margin x actuator.max_velocity``):
+#: the rest is the admittance's room to catch up
+SWAY_SPEED_SHARE = 0.8
 #: the wrench step per pose kind on its first force-controlled axis (N or N·m): issue 14's
 #: 30 N vertical on the lumbar brace, 2 N·m for moments
 STEP = {'planar': (0.0, 30.0, 2.0), 'xy': (30.0, 30.0), 'path': (30.0,), 'spherical': (2.0, 2.0, 2.0)}
@@ -79,6 +89,7 @@ class Script:
     :ivar rest: where the trunk rests at the start (``sim.rest_pose``).
     :ivar centre: the sway's centre (the trunk leans there first).
     :ivar amplitude: sway amplitude per pose axis (m, rad); zero on held axes.
+    :ivar phase: sway phase per pose axis (rad).
     :ivar frequency_hz: sway frequency.
     :ivar periods: whole periods of sway (the first and last quarter period tapered:
         :meth:`_Patient.sway`).
@@ -89,15 +100,18 @@ class Script:
     rest: np.ndarray
     centre: np.ndarray
     amplitude: np.ndarray
+    phase: np.ndarray
     frequency_hz: float
     periods: int
     step: np.ndarray
     step_axis: int
 
 
-def _feasible(mech: Any, poses: np.ndarray, min_capacity: np.ndarray | None, max_force: float) -> bool:
-    """Every pose inside the stroke (with :data:`SWAY_STROKE_MARGIN`), in the workspace, and
-    with at least ``min_capacity`` of wrench capacity."""
+def _feasible(mech: Any, poses: np.ndarray, min_capacity: np.ndarray | None, max_force: float,
+              rates: np.ndarray | None = None, max_speed: float = math.inf) -> bool:
+    """Every pose inside the stroke (with :data:`SWAY_STROKE_MARGIN`), in the workspace, with
+    at least ``min_capacity`` of wrench capacity, and (``rates``: the pose rates there) no
+    actuator faster than ``max_speed``."""
     lo, hi = (np.asarray(a, dtype=float) for a in mech.actuator_limits)
     margin = SWAY_STROKE_MARGIN * (hi - lo)
     q = np.asarray(mech.inverse_batch(poses), dtype=float)
@@ -105,6 +119,11 @@ def _feasible(mech: Any, poses: np.ndarray, min_capacity: np.ndarray | None, max
         return False
     if not all(mech.in_workspace(p) for p in poses):
         return False
+    if rates is not None:
+        speed = max(float(np.max(np.abs(np.asarray(mech.jacobian(p), dtype=float) @ v)))
+                    for p, v in zip(poses, rates))
+        if speed > max_speed:
+            return False
     if min_capacity is not None:
         try:
             cap = np.asarray(mech.wrench_capacity_batch(poses, max_force), dtype=float)
@@ -115,11 +134,12 @@ def _feasible(mech: Any, poses: np.ndarray, min_capacity: np.ndarray | None, max
     return True
 
 
-def plan_script(config: Any, *, frequency_hz: float = 0.3, periods: int = 2) -> Script:
+def plan_script(config: Any, *, frequency_hz: float = 0.2, periods: int = 2) -> Script:
     """The session for a device: the sway of :data:`SWAY` on its force-controlled axes
-    (``interaction.force_axes``), centred as near its rest pose as the stroke, the workspace
-    and ``trajectory.min_wrench_capacity`` allow (a grid of centres around the rest, the
-    amplitude halved until one fits), and the step of :data:`STEP` on its first force axis
+    (``interaction.force_axes``) with the phases of :data:`SWAY_PHASE`, centred as near its
+    rest pose as the stroke, the workspace and ``trajectory.min_wrench_capacity`` allow (a
+    grid of centres around the rest, the amplitude halved until one fits) and no slower than
+    the actuators (:data:`SWAY_SPEED_SHARE`), and the step of :data:`STEP` on its first force axis
     (at most half the capacity at the centre and ``interaction.max_goal_wrench``).
 
     :raises ValueError: the device selects no force axis, or no sway of at least a quarter
@@ -144,7 +164,11 @@ def plan_script(config: Any, *, frequency_hz: float = 0.3, periods: int = 2) -> 
     min_cap = None if cap_raw is None else np.atleast_1d(np.asarray(cap_raw, dtype=float))
     if min_cap is not None and not np.any(min_cap):
         min_cap = None
-    phase = np.linspace(0.0, 2.0 * math.pi, 25)
+    wt = np.linspace(0.0, 2.0 * math.pi, 49)[:, None]
+    ph = np.asarray(SWAY_PHASE[kind], dtype=float)
+    w = 2.0 * math.pi * float(frequency_hz)
+    max_speed = SWAY_SPEED_SHARE * float(cfg['trajectory'].get('limit_margin', 0.8)) \
+        * float(cfg.get_path('actuator.max_velocity'))
     free = np.flatnonzero(axes)
     for scale in (1.0, 0.5, 0.25):
         amp = np.where(axes, np.asarray(SWAY[kind], dtype=float), 0.0) * scale
@@ -154,9 +178,11 @@ def plan_script(config: Any, *, frequency_hz: float = 0.3, periods: int = 2) -> 
         for g in grid:
             centre = rest.copy()
             centre[free] += g * np.asarray(SWAY[kind], dtype=float)[free]
-            sway = centre + np.outer(np.sin(phase), amp)
+            sway = centre + amp * np.sin(wt + ph)
+            if not _feasible(mech, sway, min_cap, max_force, amp * w * np.cos(wt + ph), max_speed):
+                continue
             lean = rest + np.outer(np.linspace(0.0, 1.0, 9), centre - rest)
-            if _feasible(mech, np.vstack([sway, lean]), min_cap, max_force):
+            if _feasible(mech, lean, min_cap, max_force):
                 break
         else:
             continue
@@ -181,7 +207,7 @@ def plan_script(config: Any, *, frequency_hz: float = 0.3, periods: int = 2) -> 
         pass
     step = np.zeros(dof)
     step[k] = value
-    return Script(rest, centre, amp, float(frequency_hz), int(periods), step, k)
+    return Script(rest, centre, amp, ph, float(frequency_hz), int(periods), step, k)
 
 
 class _Patient:
@@ -231,7 +257,7 @@ class _Patient:
         self._stream(lambda t: start + _min_jerk(t / duration) * (goal - start), duration, stop)
 
     def sway(self, script: Script, stop: threading.Event) -> None:
-        """``centre + A e(t) sin(w t)`` over the script's whole periods; the envelope ``e``
+        """``centre + A e(t) sin(w t + phase)`` over the script's whole periods; the envelope ``e``
         rises (falls) as a half cosine over the first (last) quarter period, so the trunk
         starts and stops without a step in velocity, and is 1 in between."""
         w = 2.0 * math.pi * script.frequency_hz
@@ -242,7 +268,7 @@ class _Patient:
             u = min(1.0, t / quarter, (duration - t) / quarter)
             return 0.5 * (1.0 - math.cos(math.pi * max(u, 0.0)))
 
-        self._stream(lambda t: script.centre + script.amplitude * envelope(t) * math.sin(w * t),
+        self._stream(lambda t: script.centre + script.amplitude * envelope(t) * np.sin(w * t + script.phase),
                      duration, stop)
 
     def _stream(self, pose_at: Callable[[float], np.ndarray], duration: float, stop: threading.Event) -> None:
@@ -375,7 +401,8 @@ def run_interaction_demo(device: str, out: Path, *, processes: bool = True,
     cfg = load_device_config(config)
     mech = mechanism_from_config(cfg)
     script = plan_script(cfg, **({'periods': 1} if quick else {}))
-    print(f'session: sway {np.round(script.amplitude, 4).tolist()} at {script.frequency_hz:g} Hz '
+    print(f'session: sway {np.round(script.amplitude, 4).tolist()} (phase {np.round(script.phase, 2).tolist()} rad) '
+          f'at {script.frequency_hz:g} Hz '
           f'around {np.round(script.centre, 4).tolist()}, wrench step {script.step.tolist()}')
     extra = [*extra_args, '-p', 'sim.truth_rate_hz:=100.0']
 
@@ -447,7 +474,8 @@ def run_interaction_demo(device: str, out: Path, *, processes: bool = True,
         rclpy.try_shutdown()
     (out / 'phases.json').write_text(json.dumps(
         {'script': {'rest': script.rest.tolist(), 'centre': script.centre.tolist(),
-                    'amplitude': script.amplitude.tolist(), 'frequency_hz': script.frequency_hz,
+                    'amplitude': script.amplitude.tolist(), 'phase': script.phase.tolist(),
+                    'frequency_hz': script.frequency_hz,
                     'periods': script.periods, 'step': script.step.tolist(),
                     'step_axis': script.step_axis},
          'phases': [{'name': n, 'start_ns': a, 'end_ns': b} for n, a, b in phases]}, indent=1))
