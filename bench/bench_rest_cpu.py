@@ -95,8 +95,8 @@ def driver(config: str, params: list[str], seconds: float, report: bool) -> None
     import rclpy
     from brace_control.nodes.can_driver_node import CanDriverNode
     rclpy.init(args=['bench_rest_cpu'] + ros_args(config, params, f'restcpu{os.getpid()}'))
-    node = CanDriverNode(boot=False)
-    node.start()
+    node = CanDriverNode()
+    node.autostart()                # lifecycle: configure + activate
     stop, thread = spin_in_thread(node)
     node.master.home()
     node.master.enable()

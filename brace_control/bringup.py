@@ -5,12 +5,20 @@
     brace-bringup config/lumbar_brace.yaml              # one process, simulated brace
     brace-bringup lumbar_brace --processes              # one process per node (installed executables)
     brace-bringup config/lumbar_brace.yaml --no-sim     # real bus (can.sim:=false)
+    brace-bringup lumbar_brace --manual-lifecycle       # driver left unconfigured (ros2 lifecycle set)
     ros2 run brace_control bringup <share>/config/lumbar_brace.yaml
 
 Nodes (ARCHITECTURE.md, data flow): ``trajectory_node`` -> ``ik_node`` ->
 ``can_driver_node`` (with the simulated brace on the same virtual bus unless
 ``--no-sim``) -> ``kinetics_node``. Every node reads the device file as its ROS parameter
 file (``--ros-args --params-file``), in both modes.
+
+The CAN driver is a lifecycle node (docs/can.md, "Lifecycle"): the bring-up takes it to
+*active* (configure: bus open, drives booted; activate: commands taken), in one process by
+its transitions directly, as processes by the driver executable itself. A driver that does
+not come up ends the bring-up with exit code 1 and the cause. ``--manual-lifecycle`` leaves it
+unconfigured for an operator's ``ros2 lifecycle set /can_driver_node configure`` and
+``activate`` (README, "Operator's sequence").
 
 *One process* (default): every node has its own executor thread (``--executor
 per-node``, the default) or all share one :class:`MultiThreadedExecutor` (``--executor
@@ -46,6 +54,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from .can.errors import DriverError
 from .config import ConfigError, load_device_config, resolve_device_file
 from .nodes import topics
 
@@ -55,6 +64,8 @@ __all__ = ['NODE_NAMES', 'STACK_LINKS', 'BringUp', 'ProcessBringUp', 'node_class
 #: the nodes of a device, in data-flow order
 NODE_NAMES = ('trajectory_node', 'ik_node', 'can_driver_node', 'kinetics_node', 'interaction_node')
 DRIVER = 'can_driver_node'
+_MANUAL_HINT = ('can_driver_node is unconfigured (--manual-lifecycle): ros2 lifecycle set '
+                '/can_driver_node configure, then activate')
 
 
 def node_class(name: str) -> type:
@@ -234,12 +245,15 @@ class BringUp:
         so they never hold up its streams). Same isolation between nodes, less executor
         overhead: the CAN driver's SYNC thread (same interpreter, same GIL) keeps its period
         far better, see bench/RESULTS.md.
+    :param manual_lifecycle: leave the CAN driver unconfigured (default: configured and
+        activated here, :meth:`~.nodes.can_driver_node.CanDriverNode.autostart`).
+    :raises DriverError: the driver's configure or activate failed (the message says why).
     """
 
     def __init__(self, config: str | Path, *, sim: bool = True,
                  nodes: Sequence[str] = NODE_NAMES, context: Any = None,
                  extra_args: Sequence[str] = (), num_threads: int | None = None,
-                 executor: str = 'per-node') -> None:
+                 executor: str = 'per-node', manual_lifecycle: bool = False) -> None:
         from rclpy.executors import MultiThreadedExecutor
 
         from .nodes.runner import make_executor
@@ -267,6 +281,8 @@ class BringUp:
             for name in self.names:
                 cls = node_class(name)
                 self.nodes[name] = cls(context=context, cli_args=self._args)
+            if DRIVER in self.nodes and not manual_lifecycle:
+                self.nodes[DRIVER].autostart()          # configure + activate, before spinning
             self._helper = rclpy.create_node('brace_bringup', context=context)
             for name, node in [*self.nodes.items(), ('helper', self._helper)]:
                 if shared is not None:
@@ -293,6 +309,8 @@ class BringUp:
 
     def start(self) -> 'BringUp':
         """Spin the executor(s) in background threads."""
+        from .nodes.runner import freeze_start_up_heap
+        freeze_start_up_heap()
         for i, ex in enumerate(self._executors):
             t = threading.Thread(target=self._spin, args=(ex,), name=f'bringup-executor-{i}',
                                  daemon=True)
@@ -319,6 +337,9 @@ class BringUp:
         """Disable the drives through the driver's service (nodes still running)."""
         if DRIVER not in self.nodes or self._helper is None:
             return True, 'no driver'
+        state = getattr(self.nodes[DRIVER], 'lifecycle_state', 'active')
+        if state not in ('inactive', 'active'):
+            return True, f'the driver is {state}: no bus open, nothing to disable'
         return disable_drives(self._helper, timeout=timeout,
                               executor=self._executors[0] if self._threads else None)
 
@@ -382,10 +403,13 @@ def find_executable(name: str) -> list[str]:
 
 
 class ProcessBringUp:
-    """Each node as its own process (``--processes``)."""
+    """Each node as its own process (``--processes``). The CAN driver's executable configures
+    and activates itself (exit code 1 if that fails) unless ``manual_lifecycle``: then it
+    starts unconfigured (``can_driver_node --manual-lifecycle``)."""
 
     def __init__(self, config: str | Path, *, sim: bool = True, nodes: Sequence[str] = NODE_NAMES,
-                 extra_args: Sequence[str] = (), env: dict[str, str] | None = None) -> None:
+                 extra_args: Sequence[str] = (), env: dict[str, str] | None = None,
+                 manual_lifecycle: bool = False) -> None:
         self.config_path = resolve_device_file(config)
         load_device_config(self.config_path)           # fail early on a broken file
         self.names = tuple(nodes)
@@ -395,13 +419,16 @@ class ProcessBringUp:
         self.env['PYTHONPATH'] = os.pathsep.join(
             p for p in (self.env.get('PYTHONPATH', ''), pkg_root) if p)
         self.procs: dict[str, subprocess.Popen] = {}
+        self.manual_lifecycle = manual_lifecycle
 
     def start(self) -> 'ProcessBringUp':
+        from .nodes.can_driver_node import MANUAL_LIFECYCLE
         for name in self.names:
+            own = [MANUAL_LIFECYCLE] if name == DRIVER and self.manual_lifecycle else []
             # own session: a terminal Ctrl-C reaches only the bring-up, which disables the
             # drives before it forwards SIGINT to the nodes
-            self.procs[name] = subprocess.Popen([*find_executable(name), *self.args], env=self.env,
-                                                start_new_session=True)
+            self.procs[name] = subprocess.Popen([*find_executable(name), *own, *self.args],
+                                                env=self.env, start_new_session=True)
         return self
 
     def failed(self) -> dict[str, int]:
@@ -436,6 +463,9 @@ def _parser() -> argparse.ArgumentParser:
                     help='one process: an executor per node (default) or one MultiThreadedExecutor')
     ap.add_argument('--nodes', nargs='+', choices=NODE_NAMES, default=list(NODE_NAMES),
                     help='start only these nodes')
+    ap.add_argument('--manual-lifecycle', action='store_true',
+                    help='leave can_driver_node unconfigured: ros2 lifecycle set /can_driver_node '
+                         'configure, then activate (default: brought to active)')
     return ap
 
 
@@ -462,16 +492,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as exc:
         print(f'brace-bringup: configuration error: {exc}', file=sys.stderr)
         return 2
+    except DriverError as exc:
+        print(f'brace-bringup: the CAN driver did not come up: {exc}', file=sys.stderr)
+        return 1
     finally:
         rclpy.try_shutdown()
 
 
 def _run_in_process(args: argparse.Namespace, extra: list[str], stop: threading.Event) -> int:
     bringup = BringUp(args.config, sim=not args.no_sim, nodes=args.nodes, extra_args=extra,
-                      executor=args.executor)
+                      executor=args.executor, manual_lifecycle=args.manual_lifecycle)
     log = bringup.helper.get_logger()
     bringup.start()
     log.info(f'{", ".join(bringup.names)} up ({bringup.config_path}); Ctrl-C to stop')
+    if args.manual_lifecycle and DRIVER in bringup.names:
+        log.info(_MANUAL_HINT)
     while not stop.wait(0.2):
         if not bringup.running:
             log.error('executor stopped unexpectedly')
@@ -484,11 +519,14 @@ def _run_in_process(args: argparse.Namespace, extra: list[str], stop: threading.
 
 def _run_processes(args: argparse.Namespace, extra: list[str], stop: threading.Event) -> int:
     import rclpy
-    group = ProcessBringUp(args.config, sim=not args.no_sim, nodes=args.nodes, extra_args=extra)
+    group = ProcessBringUp(args.config, sim=not args.no_sim, nodes=args.nodes, extra_args=extra,
+                           manual_lifecycle=args.manual_lifecycle)
     helper = rclpy.create_node('brace_bringup')
     log = helper.get_logger()
     group.start()
     log.info(f'{", ".join(group.names)} started as processes; Ctrl-C to stop')
+    if args.manual_lifecycle and DRIVER in group.names:
+        log.info(_MANUAL_HINT)
     rc = 0
     while not stop.wait(0.2):
         dead = group.failed()

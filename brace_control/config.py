@@ -10,9 +10,14 @@ A device file looks like::
 
 Nested mappings are ROS parameter namespaces (``mechanism.type``); lists of points are
 flattened ``[x0, y0, x1, y1, ...]`` because ROS parameters cannot hold nested lists.
+
+Every :class:`DeviceConfig` is checked against :mod:`brace_control.schema` when it is built
+(from a file or from a dict in Python): an unknown key, a wrong type or a value out of range
+is a :class:`ConfigError` naming the key; absent parameters get the schema's defaults.
 """
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -20,25 +25,53 @@ from typing import Any
 import numpy as np
 import yaml
 
+from . import schema
+from .schema import ConfigError
+
 __all__ = [
     'DeviceConfig', 'ConfigError', 'load_device_config', 'flatten_parameters',
-    'points', 'config_dir', 'resolve_device_file',
+    'points', 'config_dir', 'resolve_device_file', 'as_device_config',
 ]
 
 
-class ConfigError(ValueError):
-    """A device file is missing, malformed, or holds a value out of its range."""
+class _RosYamlLoader(yaml.SafeLoader):
+    """PyYAML's safe loader reading numbers as ROS 2's parameter parser does: ``1e4``,
+    ``1.0e-6`` and ``.5`` are floats (YAML 1.1 makes them strings)."""
+
+
+_RosYamlLoader.add_implicit_resolver(
+    'tag:yaml.org,2002:float',
+    re.compile(r'''^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+                  |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+                  |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
+                  |[-+]?\.(?:inf|Inf|INF)
+                  |\.(?:nan|NaN|NAN))$''', re.X),
+    list('-+0123456789.'))
 
 
 class DeviceConfig(dict):
     """Parameters of one device (the ``ros__parameters`` mapping), plus where it came from.
 
     Behaves as the nested dict of the YAML; :meth:`get_path` reads dotted names the way a
-    ROS parameter is named (``cfg.get_path('can.sync_rate_hz')``).
+    ROS parameter is named (``cfg.get_path('can.sync_rate_hz')``). Building one checks
+    ``params`` against :mod:`brace_control.schema` and fills in the schema's defaults, so
+    every reader sees the same values whether the config came from a file, from a dict
+    built in Python or from a node's parameters.
+
+    :param params: the nested parameters.
+    :param path: the YAML it was read from (files it names are relative to it).
+    :param source: where the parameters came from, for messages (default: ``path``).
+    :raises ConfigError: an unknown key (naming the closest known one), a wrong type or a
+        value out of range, naming the key, the value, what was expected and the unit.
     """
 
-    def __init__(self, params: Mapping[str, Any], path: Path | None = None) -> None:
-        super().__init__(params)
+    def __init__(self, params: Mapping[str, Any], path: Path | None = None, *,
+                 source: str | None = None) -> None:
+        if not isinstance(params, Mapping):
+            raise ConfigError(f'device parameters: expected a mapping, got {type(params).__name__}')
+        self.source = source if source is not None else (str(path) if path is not None else None)
+        schema.validate(params, self.source)
+        super().__init__(schema.with_defaults(params))
         self.path = path
 
     def get_path(self, dotted: str, default: Any = ...) -> Any:
@@ -65,6 +98,12 @@ class DeviceConfig(dict):
         if not p.is_absolute() and self.path is not None:
             p = self.path.parent / p
         return p
+
+
+def as_device_config(cfg: Mapping[str, Any]) -> DeviceConfig:
+    """``cfg`` itself when it is a :class:`DeviceConfig`, else one built (and so checked
+    against the schema) from the nested mapping: the one entry point of every reader."""
+    return cfg if isinstance(cfg, DeviceConfig) else DeviceConfig(cfg)
 
 
 def config_dir() -> Path:
@@ -96,11 +135,13 @@ def load_device_config(path: str | Path) -> DeviceConfig:
     Accepts the ``/**: ros__parameters:`` layout, a single node-name key with
     ``ros__parameters``, or a bare mapping of parameters.
 
-    :raises ConfigError: missing file, YAML syntax error, or no parameter mapping.
+    :raises ConfigError: missing file, YAML syntax error, no parameter mapping, or a
+        parameter the schema does not know, of the wrong type or out of range (naming it,
+        with the closest known name for an unknown one).
     """
     p = resolve_device_file(path)
     try:
-        doc = yaml.safe_load(p.read_text())
+        doc = yaml.load(p.read_text(), Loader=_RosYamlLoader)  # noqa: S506 - a SafeLoader
     except yaml.YAMLError as exc:
         raise ConfigError(f'{p}: not valid YAML: {exc}') from exc
     if not isinstance(doc, Mapping):
@@ -117,19 +158,12 @@ def load_device_config(path: str | Path) -> DeviceConfig:
             params = doc
     if not isinstance(params, Mapping):
         raise ConfigError(f'{p}: no "ros__parameters" mapping found')
-    return DeviceConfig(params, p.resolve())
+    return DeviceConfig(params, p.resolve(), source=str(p))
 
 
 def flatten_parameters(params: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:
     """Nested mapping -> ``{'mechanism.type': 'rpr3', ...}`` as ROS names its parameters."""
-    out: dict[str, Any] = {}
-    for key, value in params.items():
-        name = f'{prefix}{key}'
-        if isinstance(value, Mapping):
-            out.update(flatten_parameters(value, f'{name}.'))
-        else:
-            out[name] = value
-    return out
+    return schema.flatten(params, prefix)
 
 
 def points(flat: Any, name: str, *, dim: int = 2) -> np.ndarray:

@@ -8,8 +8,9 @@ session instead, :mod:`brace_control.demo_interaction`.)
 1. builds the bundled exercise (:mod:`brace_control.exercise`) into ``OUT/exercise``;
 2. brings the four nodes up with the simulated brace on the virtual bus, each node as
    its own process (:class:`brace_control.bringup.ProcessBringUp`; ``--in-process``: all
-   in this process, :class:`~brace_control.bringup.BringUp`), homes and enables the
-   drives (the CAN driver's ``home`` / ``enable`` services);
+   in this process, :class:`~brace_control.bringup.BringUp`; either takes the CAN driver,
+   a lifecycle node, through configure and activate), homes and enables the drives (the
+   CAN driver's ``home`` / ``enable`` services);
 3. records every brace topic a run publishes (:data:`RECORDED_TOPICS`: goals, planned
    pose and actuator trajectories, joint states, the estimate, wrench, goal, execution and
    driver status, ``/diagnostics`` and the simulator's truth ``/brace/sim/*``) to

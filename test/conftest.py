@@ -1,9 +1,11 @@
-"""Test-wide settings: DDS stays on loopback, each run on its own ROS domain.
+"""Test-wide settings and fixtures: DDS stays on loopback, each run on its own ROS domain.
 
-Set before anything imports rclpy, so every node, and every subprocess a test starts,
-inherits them.
+The environment is set before anything imports rclpy, so every node, and every subprocess a
+test starts, inherits it.
 """
 import os
+
+import pytest
 
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 # Our own domain per test run so two runs on one machine never cross-talk
@@ -11,3 +13,16 @@ os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 200))
 os.environ.setdefault('MPLBACKEND', 'Agg')
 os.environ.setdefault('RCUTILS_LOGGING_BUFFERED_STREAM', '1')
+
+
+@pytest.fixture
+def ros():
+    """A fresh :class:`ros_helpers.Ros` (own Context and executor), shut down after the test."""
+    # Imported here, not at the top, so rclpy loads only after the environment above is set
+    # and only for tests that start nodes.
+    from ros_helpers import Ros
+    r = Ros()
+    try:
+        yield r
+    finally:
+        r.close()

@@ -1,6 +1,7 @@
 """rclpy helpers for node tests: a private Context per test, spinning until a condition.
 
-Import the fixture into a test module (``from ros_helpers import ros  # noqa: F401``).
+The ``ros`` fixture that yields a :class:`Ros` lives in ``conftest.py``; test modules take it as
+an argument and import from here only the helpers and constants they name.
 No fixed sleeps: tests spin the executor until what they wait for has happened, with a
 timeout that fails the test with a message.
 """
@@ -51,7 +52,12 @@ class Ros:
         return self.add(Node(name, context=self.context))
 
     def device_node(self, cls: type, path: str | Path = LUMBAR_YAML, **overrides: Any) -> Node:
-        return self.add(cls(context=self.context, cli_args=params_args(path, **overrides)))
+        """``cls`` started with the device file; ``overrides`` that are keywords of its
+        constructor (``boot=False``) go there, the rest are ``-p`` parameter overrides."""
+        import inspect
+        ctor = inspect.signature(cls).parameters
+        kwargs = {k: overrides.pop(k) for k in list(overrides) if k in ctor}
+        return self.add(cls(context=self.context, cli_args=params_args(path, **overrides), **kwargs))
 
     def collect(self, node: Node, msg_type: type, topic: str, qos: Any = RELIABLE_10) -> list:
         """Subscribe ``topic`` on ``node``; the returned list fills as messages arrive."""
@@ -85,12 +91,3 @@ class Ros:
             node.destroy_node()
         rclpy.shutdown(context=self.context)
 
-
-@pytest.fixture
-def ros():
-    """A fresh :class:`Ros` (own Context and executor), shut down after the test."""
-    r = Ros()
-    try:
-        yield r
-    finally:
-        r.close()

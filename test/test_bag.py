@@ -38,7 +38,7 @@ from std_msgs.msg import String
 from brace_control.bag import (DEFAULT_DEPTH, BagError, Recorder, bag_info, load_qos_overrides,
                                open_bag, qos_with_overrides, recorded_qos, replay)
 from brace_control.nodes.msgs import pose_msg, sec_to_stamp
-from ros_helpers import RELIABLE_10, ros  # noqa: F401
+from ros_helpers import RELIABLE_10
 
 STORE = get_typestore(Stores.ROS2_HUMBLE)
 POSE_T = 'geometry_msgs/msg/PoseStamped'
@@ -72,7 +72,7 @@ def write_bag(path, storage: StoragePlugin, *, version: int = 9, extra: bool = T
     return payloads
 
 
-def _replay_into(ros, bag, **kw):  # noqa: F811
+def _replay_into(ros, bag, **kw):
     """Replay ``bag`` from a thread; collect /brace/pose_goal raw and parsed."""
     test = ros.node('bag_test')
     raw, parsed = [], []
@@ -105,7 +105,7 @@ def _replay_into(ros, bag, **kw):  # noqa: F811
     (StoragePlugin.SQLITE3, 8), (StoragePlugin.SQLITE3, 9),
     (StoragePlugin.MCAP, 8), (StoragePlugin.MCAP, 9)],
     ids=['sqlite3-v8', 'sqlite3-v9', 'mcap-v8', 'mcap-v9'])
-def test_replay_publishes_recorded_bytes_unchanged(ros, tmp_path, storage, version):  # noqa: F811
+def test_replay_publishes_recorded_bytes_unchanged(ros, tmp_path, storage, version):
     bag = tmp_path / 'goals'
     payloads = write_bag(bag, storage, version=version)
     stats, raw, parsed, _ = _replay_into(ros, bag)
@@ -116,7 +116,7 @@ def test_replay_publishes_recorded_bytes_unchanged(ros, tmp_path, storage, versi
 
 
 @pytest.mark.ros
-def test_replay_keeps_timing_scaled_by_rate_and_filters_topics(ros, tmp_path):  # noqa: F811
+def test_replay_keeps_timing_scaled_by_rate_and_filters_topics(ros, tmp_path):
     bag = tmp_path / 'goals'
     write_bag(bag, StoragePlugin.MCAP)
     stats, *_ = _replay_into(ros, bag, rate=0.5, topics=['/brace/pose_goal'])
@@ -126,7 +126,7 @@ def test_replay_keeps_timing_scaled_by_rate_and_filters_topics(ros, tmp_path):  
 
 
 @pytest.mark.ros
-def test_replay_of_a_single_mcap_file(ros, tmp_path):  # noqa: F811
+def test_replay_of_a_single_mcap_file(ros, tmp_path):
     bag = tmp_path / 'goals'
     payloads = write_bag(bag, StoragePlugin.MCAP)
     (single,) = bag.glob('*.mcap')
@@ -149,7 +149,7 @@ def test_unknown_storage_format_is_a_clear_error(tmp_path):
 
 
 @pytest.mark.ros
-def test_message_type_this_python_lacks_is_a_clear_error(ros, tmp_path):  # noqa: F811
+def test_message_type_this_python_lacks_is_a_clear_error(ros, tmp_path):
     from rosbags.typesys import get_types_from_msg
     store = get_typestore(Stores.ROS2_HUMBLE)
     store.register(get_types_from_msg('float64 force_n', 'brace_exotic_msgs/msg/Thing'))
@@ -178,7 +178,7 @@ def test_cli_info(tmp_path):
 
 @pytest.mark.ros
 @pytest.mark.parametrize('out_name', ['run.mcap', 'run_dir'])
-def test_record_then_read_back(ros, tmp_path, out_name):  # noqa: F811
+def test_record_then_read_back(ros, tmp_path, out_name):
     pub_node = ros.node('talker')
     pub = pub_node.create_publisher(PoseStamped, '/brace/pose', RELIABLE_10)
     rec_node = ros.node('recorder')
@@ -289,7 +289,7 @@ def _stored(storage: str) -> dict[str, list[bytes]]:
     return out
 
 
-def _run_replay(ros, player, bag, **kw):  # noqa: F811
+def _run_replay(ros, player, bag, **kw):
     """``replay`` from a thread while the test spins its subscribers; returns the stats."""
     result: dict = {}
 
@@ -351,7 +351,7 @@ def test_real_bag_qos_means_the_same_in_metadata_and_storage(storage):
 
 @pytest.mark.ros
 @pytest.mark.parametrize('storage, form', REAL_FORMS)
-def test_replay_of_real_bag_delivers_every_message(ros, storage, form):  # noqa: F811
+def test_replay_of_real_bag_delivers_every_message(ros, storage, form):
     sub = ros.node('talker_listener')
     got = {'/topic': [], '/rosout': []}
     sub.create_subscription(String, '/topic', got['/topic'].append, KEEP_ALL_RELIABLE, raw=True)
@@ -374,13 +374,13 @@ def _cli(*args: str, **kw) -> list[str]:
     return [sys.executable, '-m', 'brace_control.bag', *args]
 
 
-def _spin_process(ros, proc, timeout: float = 60.0) -> tuple[str, str]:  # noqa: F811
+def _spin_process(ros, proc, timeout: float = 60.0) -> tuple[str, str]:
     ros.spin_until(lambda: proc.poll() is not None, timeout=timeout, what=f'{proc.args[3:5]}')
     return proc.communicate(timeout=10)
 
 
 @pytest.mark.ros
-def test_cli_replay_of_real_bag_directory(ros):  # noqa: F811
+def test_cli_replay_of_real_bag_directory(ros):
     """The user's command: ``brace-bag replay sqlite3_talker`` published 0 and exited 0."""
     got: list[bytes] = []
     ros.node('listener').create_subscription(String, '/topic', got.append, KEEP_ALL_RELIABLE,
@@ -402,7 +402,7 @@ BURST = 5000
 
 
 @pytest.mark.ros
-def test_cli_replay_delivers_a_burst_whole(ros, tmp_path):  # noqa: F811
+def test_cli_replay_delivers_a_burst_whole(ros, tmp_path):
     """5000 messages stamped within one microsecond, replayed from another process into a
     reliable KEEP_ALL subscriber: every one arrives, in order, and the command says so."""
     t0 = 1_700_000_000_000_000_000
@@ -449,7 +449,7 @@ def test_cli_record_of_a_topic_that_never_appears_exits_1(tmp_path, out_name):
 
 @pytest.mark.ros
 @pytest.mark.slow
-def test_replay_reports_a_subscriber_that_stops_acknowledging(ros, tmp_path):  # noqa: F811
+def test_replay_reports_a_subscriber_that_stops_acknowledging(ros, tmp_path):
     """A reliable subscriber in a process that is frozen (SIGSTOP) after discovery never
     acknowledges: the replay says which topic, within the ack timeout."""
     string = 'std_msgs/msg/String'
@@ -507,7 +507,7 @@ def _topic_entry(info: dict, name: str) -> dict:
 
 
 @pytest.mark.ros
-def test_replay_reports_fewer_messages_than_the_bag_lists(ros, tmp_path):  # noqa: F811
+def test_replay_reports_fewer_messages_than_the_bag_lists(ros, tmp_path):
     bag = tmp_path / 'goals'
     write_bag(bag, StoragePlugin.SQLITE3)
 
@@ -527,7 +527,7 @@ def test_replay_reports_fewer_messages_than_the_bag_lists(ros, tmp_path):  # noq
 
 
 @pytest.mark.ros
-def test_topic_filter_that_selects_no_message_is_a_problem(ros):  # noqa: F811
+def test_topic_filter_that_selects_no_message_is_a_problem(ros):
     stats = _run_replay(ros, ros.node('player'), REAL['mcap'], topics=['/parameter_events'])
     assert stats.total == 0
     assert stats.problems == ["nothing to replay: the topic filter ['/parameter_events'] "
@@ -538,7 +538,7 @@ def test_topic_filter_that_selects_no_message_is_a_problem(ros):  # noqa: F811
 
 @pytest.mark.ros
 @pytest.mark.parametrize('change', ['drop', 'retype'])
-def test_storage_connection_missing_from_metadata_is_said(ros, tmp_path, change):  # noqa: F811
+def test_storage_connection_missing_from_metadata_is_said(ros, tmp_path, change):
     bag = tmp_path / 'goals'
     write_bag(bag, StoragePlugin.MCAP)
 
@@ -775,7 +775,7 @@ def test_qos_overrides_replace_only_the_named_policies(tmp_path):
 
 
 @pytest.mark.ros
-def test_replay_with_a_qos_override(ros):  # noqa: F811
+def test_replay_with_a_qos_override(ros):
     got: list[bytes] = []
     best_effort = QoSProfile(history=HistoryPolicy.KEEP_ALL,
                              reliability=ReliabilityPolicy.BEST_EFFORT)

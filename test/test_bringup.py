@@ -15,7 +15,7 @@ from sensor_msgs.msg import JointState
 from brace_control.bringup import BringUp, find_executable, node_class
 from brace_control.nodes.ik_node import IkNode
 from brace_control.nodes.msgs import pose_msg
-from ros_helpers import LUMBAR_YAML, REPO, RELIABLE_10, ros  # noqa: F401
+from ros_helpers import LUMBAR_YAML, REPO, RELIABLE_10
 
 MY_NODES = ['ik_node', 'kinetics_node']
 
@@ -27,6 +27,31 @@ def test_launch_file_is_valid_python_with_the_four_nodes():
                for n in tree.body)
     for name in ('trajectory_node', 'ik_node', 'can_driver_node', 'kinetics_node'):
         assert f"'{name}'" in src
+    # the driver is a launch_ros LifecycleNode that launch (not the executable) takes to active
+    for needed in ('LifecycleNode(', "'--manual-lifecycle'", 'TRANSITION_CONFIGURE',
+                   'TRANSITION_ACTIVATE', "goal_state='inactive'", "'manual_lifecycle'"):
+        assert needed in src, needed
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize('manual', [False, True], ids=['automatic', 'manual-lifecycle'])
+def test_in_process_bringup_takes_the_driver_to_active_unless_manual(manual):
+    ctx = Context()
+    rclpy.init(context=ctx)
+    try:
+        b = BringUp(LUMBAR_YAML, nodes=['can_driver_node'], context=ctx, manual_lifecycle=manual,
+                    extra_args=['-p', f'can.channel:=bringup-{os.getpid()}-{int(manual)}']).start()
+        try:
+            driver = b.node('can_driver_node')
+            assert driver.lifecycle_state == ('unconfigured' if manual else 'active')
+            assert (driver.master is None) == manual
+            ok, msg = b.call('/can_driver_node/home', timeout=10)
+            assert ok != manual and (not manual or 'unconfigured' in msg), msg
+        finally:
+            b.shutdown()
+        assert driver.lifecycle_state == 'finalized' and driver.master is None
+    finally:
+        rclpy.shutdown(context=ctx)
 
 
 def test_node_class_finds_the_node_of_a_module():
@@ -70,7 +95,7 @@ def test_in_process_bringup_carries_a_setpoint_and_shuts_down():
 @pytest.mark.ros
 @pytest.mark.slow
 @pytest.mark.parametrize('mode', [[], ['--processes']], ids=['one-process', 'processes'])
-def test_cli_stops_cleanly_on_sigint_and_sigterm(ros, mode):  # noqa: F811
+def test_cli_stops_cleanly_on_sigint_and_sigterm(ros, mode):
     for sig in (signal.SIGINT, signal.SIGTERM):
         proc = subprocess.Popen(
             [sys.executable, '-m', 'brace_control.bringup', str(LUMBAR_YAML), *mode,

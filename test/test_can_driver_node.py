@@ -1,6 +1,8 @@
 """can_driver_node with rclpy: services, joint_states, setpoint validation, diagnostics.
 
-The node runs in-process with the simulated brace on its own virtual channel.
+The node runs in-process with the simulated brace on its own virtual channel, brought to
+active by :meth:`CanDriverNode.autostart` (configure + activate; the lifecycle itself is
+tested in test_lifecycle.py).
 """
 from __future__ import annotations
 
@@ -16,7 +18,7 @@ from std_srvs.srv import Trigger
 from brace_control.can import FaultKind
 from brace_control.mechanisms import load_mechanism
 from brace_control.nodes.can_driver_node import CanDriverNode, main
-from ros_helpers import LUMBAR_YAML, RELIABLE_10, ros  # noqa: F401
+from ros_helpers import LUMBAR_YAML, RELIABLE_10
 
 pytestmark = pytest.mark.ros
 _ids = itertools.count()
@@ -33,8 +35,9 @@ def call(ros, node, service, timeout=5.0):
 
 
 @pytest.fixture
-def driver(ros):  # noqa: F811 - the fixture from ros_helpers
+def driver(ros):
     node = ros.device_node(CanDriverNode, **{'can.channel': f'nodetest-{os.getpid()}-{next(_ids)}'})
+    node.autostart()
     yield node
     node.shutdown()
 
@@ -47,7 +50,7 @@ def setpoint(names, q, node):
     return msg
 
 
-def test_services_joint_states_and_setpoints(ros, driver):  # noqa: F811
+def test_services_joint_states_and_setpoints(ros, driver):
     probe = ros.node('probe')
     states = ros.collect(probe, JointState, '/brace/joint_states')
     diags = ros.collect(probe, DiagnosticArray, '/diagnostics')
@@ -111,7 +114,7 @@ def test_services_joint_states_and_setpoints(ros, driver):  # noqa: F811
         assert res.success, (name, res.message)
 
 
-def test_platform_wrench_limit_stops_and_reports(ros, driver):  # noqa: F811
+def test_platform_wrench_limit_stops_and_reports(ros, driver):
     """SAFETY.md 8: three legs each under the 250 N actuator limit, but together a
     platform force above safety.max_wrench (150 N): protective stop, in /diagnostics."""
     probe = ros.node('probe')
@@ -132,8 +135,8 @@ def test_platform_wrench_limit_stops_and_reports(ros, driver):  # noqa: F811
 
 
 def test_executable_boots_and_exits_0_on_sigint(tmp_path):
-    """``ros2 run brace_control can_driver_node``: boots the simulated brace, Ctrl-C ends it
-    cleanly (drives disabled, bus closed, exit code 0)."""
+    """``ros2 run brace_control can_driver_node``: configures itself (boots the simulated
+    brace), Ctrl-C ends it cleanly (drives disabled, bus closed, exit code 0)."""
     import signal
     import subprocess
     import sys
@@ -169,15 +172,15 @@ def test_bad_parameter_exits_2_naming_it(capsys):
 @pytest.mark.parametrize('name, value', [('safety.command_timeout', 0.0),
                                          ('safety.force_limit', -1.0),
                                          ('can.sync_rate_hz', 5000.0)])
-def test_a_bad_safety_value_stops_start_up_naming_the_parameter(ros, name, value):  # noqa: F811
+def test_a_bad_safety_value_stops_start_up_naming_the_parameter(ros, name, value):
     from brace_control.config import ConfigError
     with pytest.raises(ConfigError, match=name.replace('.', r'\.')):
-        ros.device_node(CanDriverNode, boot=False, **{name: value})
+        ros.device_node(CanDriverNode, **{name: value})
 
 
-def test_safety_limits_are_read_only_at_run_time(ros):  # noqa: F811
+def test_safety_limits_are_read_only_at_run_time(ros):
     from rclpy.parameter import Parameter
-    node = ros.device_node(CanDriverNode, boot=False)
+    node = ros.device_node(CanDriverNode)
     try:
         result = node.set_parameters([Parameter('safety.force_limit', value=1000.0)])[0]
         assert not result.successful and 'read-only' in result.reason

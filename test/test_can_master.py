@@ -1,6 +1,8 @@
 """The CiA 402 master against the simulated brace on a python-can virtual bus.
 
-Each test has its own channel. Waits poll a condition with a time limit; the fault
+Each test has its own channel. Waits poll a condition with a time limit (``wait_for``;
+``stream_until`` while a setpoint stream must go on); the only sleeps pace a producer (a
+setpoint stream at its rate, an arrival interval that is the test's input). The fault
 matrix measures each reaction time against a stated bound (periods at 500 Hz:
 2 ms; the bounds include ~50 ms of scheduling slack for a loaded 2-core machine).
 """
@@ -36,14 +38,29 @@ SLACK = 0.05      # s of scheduling slack on every bound
 CPM = 8192 / 0.001            # counts per metre (YAML)
 
 
-def wait_for(cond, timeout, what='condition'):
-    """Seconds until ``cond()`` holds; fails the test after ``timeout``."""
+def wait_for(cond, timeout, what='condition', *, poll=0.0005):
+    """Seconds until ``cond()`` holds, polled every ``poll`` s; fails the test after ``timeout``."""
     t0 = time.perf_counter()
     while not cond():
         if time.perf_counter() - t0 > timeout:
             pytest.fail(f'{what} not reached within {timeout:.3f} s')
-        time.sleep(0.0005)
+        time.sleep(poll)
     return time.perf_counter() - t0
+
+
+def stream_until(master, q, cond, timeout, what, *, stamp=None):
+    """Keep a 200 Hz setpoint stream holding ``q`` (stamped ``stamp + 0.005 k`` when given)
+    until ``cond()`` holds; fails the test after ``timeout`` s or at a protective stop."""
+    t0 = time.perf_counter()
+    k = 0
+    while not cond():
+        if master.supervisor.latched:
+            pytest.fail(f'{what}: protective stop: {master.supervisor.summary()}')
+        if time.perf_counter() - t0 > timeout:
+            pytest.fail(f'{what} not reached within {timeout:.3f} s')
+        k += 1
+        master.set_targets(q, stamp=None if stamp is None else stamp + 0.005 * k)
+        time.sleep(0.005)                        # paces the stream (200 Hz), not a wait
 
 
 @pytest.fixture
@@ -74,7 +91,7 @@ def move(master, delta, duration, *, rate=200.0):
     while (t := time.perf_counter() - t0) < duration:
         s = t / duration
         master.set_targets(q0 + np.asarray(delta) * s)
-        time.sleep(1.0 / rate)
+        time.sleep(1.0 / rate)                   # paces the stream at ``rate``, not a wait
     master.set_targets(q0 + np.asarray(delta))
     return q0
 
@@ -107,26 +124,33 @@ def test_sync_and_pdos_on_the_bus_at_the_control_rate(rig):
     sim, master = rig
     tap = can.Bus(interface='virtual', channel=sim.channel)
     monitor = BusMonitor([1, 2, 3], master.scaling)
-    notifier = can.Notifier(tap, [monitor, hb := _Counter(0x77F)])
+    sync, hb = _Stamps(0x80), _Stamps(0x77F)
+    notifier = can.Notifier(tap, [monitor, sync, hb])
     try:
-        time.sleep(0.5)
+        # 250 SYNC periods (0.5 s at 500 Hz), timed by the frames' own bus timestamps
+        wait_for(lambda: len(sync.stamps) > 250, 2.0, '251 SYNCs on the bus')
     finally:
         notifier.stop()
         tap.shutdown()
+    first, last = sync.stamps[0], sync.stamps[250]
+    assert 250 / (1.05 * 500) <= last - first <= 250 / (0.8 * 500)     # 400 .. 525 Hz
     syncs = monitor.syncs
-    assert 0.8 * 250 <= syncs <= 1.05 * 250
     for rec in monitor.drives.values():
         # at rest an RPDO1 goes out every 50 SYNCs (its content unchanged); a TPDO1 answers each
         assert syncs / 50 - 2 <= rec.controlwords <= syncs / 50 + 2 and abs(rec.tpdos - syncs) <= 3
-    assert 0.7 * 5 <= hb.count <= 6
+    beats = sum(first <= t <= last for t in hb.stamps)             # 100 ms apart
+    assert 0.7 * (last - first) / 0.1 <= beats <= (last - first) / 0.1 + 1
 
 
-class _Counter(can.Listener):
+class _Stamps(can.Listener):
+    """Bus timestamps (s, the sender's clock) of the frames with one COB-ID."""
+
     def __init__(self, cob_id):
-        self.cob_id, self.count = cob_id, 0
+        self.cob_id, self.stamps = cob_id, []
 
     def on_message_received(self, msg):
-        self.count += msg.arbitration_id == self.cob_id
+        if msg.arbitration_id == self.cob_id:
+            self.stamps.append(msg.timestamp)
 
     def stop(self):
         pass
@@ -149,12 +173,15 @@ def test_target_stream_moves_the_drives_and_feedback_is_si(rig):
         master.set_targets(q0 + delta * t / 0.5)
         if 0.2 < t < 0.3:
             seen.append((master.feedback().velocity, sim.truth().velocities))
-        time.sleep(0.005)
-    # the stream goes on holding the final setpoint: the command settles on it
-    hold_until = time.perf_counter() + 0.3
-    while time.perf_counter() < hold_until:
-        master.set_targets(q0 + delta)
-        time.sleep(0.005)
+        time.sleep(0.005)                         # paces the stream (200 Hz), not a wait
+    # the stream goes on holding the final setpoint until the drives are at rest on it
+    # (|v| below 5 encoder counts per 10 ms window)
+
+    def at_rest_on_target():
+        fb = master.feedback()
+        return (np.allclose(fb.position, q0 + delta, rtol=0, atol=2e-6)
+                and np.abs(fb.velocity).max() < 5 / CPM / 0.01)
+    stream_until(master, q0 + delta, at_rest_on_target, 1.0, 'the drives at rest on the targets')
     # m/s, from positions over 10 ms windows, against the simulator's true rates, averaged
     # over 0.1 s of the ramp (on a loaded machine this test's own 200 Hz loop may stall:
     # the master then holds, and both show it)
@@ -163,8 +190,6 @@ def test_target_stream_moves_the_drives_and_feedback_is_si(rig):
     v_true = np.array([v for _, v in seen])
     assert v_fb.mean(axis=0) == pytest.approx(v_true.mean(axis=0), abs=2e-3)
     assert np.all(np.max(np.abs(v_fb), axis=0) > 0.3 * np.abs(delta) / 0.5)      # it moved
-    wait_for(lambda: np.allclose(master.feedback().position, q0 + delta, rtol=0, atol=2e-6), 0.5,
-             'positions at the targets')
     fb = master.feedback()
     truth = sim.truth()
     # positions in m (encoder quantisation 1/8192000 m), forces in N from the load cells
@@ -188,8 +213,10 @@ def test_a_stream_that_stops_decelerates_along_its_direction_and_holds(rig):
     wait_for(lambda: not master.moving, 0.5, 'the command at rest')
     wait_for(lambda: np.allclose(master.feedback().position, master.executor.q, rtol=0, atol=3e-7), 0.3,
              'the drives settled at the command')
-    held = master.feedback().position.copy()
-    time.sleep(0.1)
+    settled = master.feedback()
+    held = settled.position.copy()
+    wait_for(lambda: master.feedback().stamp >= settled.stamp + 0.1, 0.5,
+             '50 more SYNC periods of feedback')
     assert master.feedback().position == pytest.approx(held, abs=5e-7)      # holding
     past = (held - (q0 + delta)) / np.where(np.abs(delta) > 0, delta, 1.0)  # along the motion
     bound = v * (0.015 + 0.004) + v * v / (2 * 0.5) + 2e-6
@@ -497,7 +524,7 @@ def test_bunched_stamped_setpoints_pass_the_step_limit(rig):
         q = q0 + direction * speed * 0.005 * k
         master.set_targets(q, stamp=t_stamp + 0.005 * k)
         if k % 2 == 0:
-            time.sleep(0.010)                        # two per 10 ms, back to back
+            time.sleep(0.010)                        # two per 10 ms, back to back (paces the sender)
     assert not master.supervisor.latched, master.supervisor.summary()
     assert np.linalg.norm(master.feedback().position - q0) > 0.5 * np.linalg.norm(q - q0)
 
@@ -509,7 +536,7 @@ def test_a_senders_clock_cannot_license_a_jump(rig):
     sim, master = rig
     q0 = master.feedback().position.copy()
     master.set_targets(q0, stamp=10.0)
-    time.sleep(0.005)
+    time.sleep(0.005)                   # the arrival interval under test (5 ms), not a wait
     master.set_targets(q0 + pose_delta([0.0, 0.02, 0.0]), stamp=11.0)
     wait_for(_latched(master, FaultKind.STEP_LIMIT), 0.002 + SLACK, 'step limit')
     wait_for(lambda: stopped(master), 0.5, 'protective stop')
@@ -521,7 +548,7 @@ def test_setpoints_whose_stamps_do_not_increase_are_counted_and_reported(rig):
     q0 = master.feedback().position.copy()
     master.set_targets(q0, stamp=20.0)
     for _ in range(10):                               # frozen stamps: not newer commands
-        time.sleep(0.003)
+        time.sleep(0.003)                             # paces the sender, not a wait
         master.set_targets(q0 + pose_delta([0.0, 0.0005, 0.0]), stamp=20.0)
     wait_for(lambda: master.status().rejected_setpoints >= 9, 0.2, 'rejections counted')
     assert any('stamps not increasing' in w for w in master.status().warnings)
@@ -552,20 +579,19 @@ def test_after_a_hold_the_resumed_stream_ramps_without_a_jump(rig):
     try:
         q0 = master.feedback().position.copy()
         master.set_targets(q0, stamp=50.0)
+        sent = time.perf_counter()
         wait_for(lambda: master.status().stale_setpoint_holds >= 1, 0.5, 'hold')
-        time.sleep(0.12 - 0.015)
+        # the resumed setpoint arrives 0.12 s after the last one, as its stamp says: the
+        # arrival time is the test's input (paces the sender), not a wait
+        time.sleep(max(0.0, sent + 0.12 - time.perf_counter()))
         q1 = q0 + pose_delta([0.0, 0.002, 0.0])
         master.set_targets(q1, stamp=50.12)
         # keep the stream fresh at the new place until the drives got there
         goal = round(q1[1] * CPM)
-        t0 = time.perf_counter()
-        k = 0
-        while not (np.allclose(master.feedback().position, q1, rtol=0, atol=2e-6)
-                   and rpdo.targets and abs(rpdo.targets[-1] - goal) <= 1):
-            k += 1
-            master.set_targets(q1, stamp=50.12 + 0.005 * k)
-            time.sleep(0.005)
-            assert time.perf_counter() - t0 < 2.0, 'drives did not reach the resumed target'
+        stream_until(master, q1,
+                     lambda: (np.allclose(master.feedback().position, q1, rtol=0, atol=2e-6)
+                              and rpdo.targets and abs(rpdo.targets[-1] - goal) <= 1),
+                     2.0, 'drives at the resumed target', stamp=50.12)
     finally:
         notifier.stop()
         tap.shutdown()
@@ -686,6 +712,14 @@ def _on_path(groups, plan, T, samples=2001):
     return np.asarray(worst)
 
 
+def _fraction_done(master, q_from, q_to):
+    """How far the drives are from ``q_from`` towards ``q_to`` (0 .. 1), on the axis that
+    travels most."""
+    q_from, q_to = np.asarray(q_from), np.asarray(q_to)
+    i = int(np.argmax(np.abs(q_to - q_from)))
+    return (master.feedback().position[i] - q_from[i]) / (q_to[i] - q_from[i])
+
+
 def _accelerations(rec):
     """Second differences of the targets (m/s^2), SYNC by SYNC: the executor advances a
     motion one period per SYNC (a late SYNC delays the motion, it never stretches a step)."""
@@ -701,10 +735,11 @@ def _run(master, sim, trajectory, *, until, tag=1):
     try:
         assert master.execute(trajectory, start=time.perf_counter() + 0.02, tag=tag) is None
         t0 = time.perf_counter()
-        while not until(master, time.perf_counter() - t0):
-            forces.append(sim.truth().forces)
-            time.sleep(0.002)
-            assert time.perf_counter() - t0 < 10.0, 'motion did not end'
+
+        def ended():
+            forces.append(sim.truth().forces)      # the true leg forces, one sample per poll
+            return until(master, time.perf_counter() - t0)
+        wait_for(ended, 10.0, 'the end of the motion', poll=0.002)
     finally:
         notifier.stop()
         tap.shutdown()
@@ -770,9 +805,11 @@ def test_a_new_trajectory_replaces_the_running_one_continuously(rig):
     try:
         t_a = time.perf_counter() + 0.02
         assert master.execute(knots_a, start=t_a, tag=1) is None
-        time.sleep(0.5)
-        # B: from A's state (in actuator space) 0.2 s from now, to rest at A's start lengths
-        t_b = time.perf_counter() + 0.2
+        wait_for(lambda: any(e.tag == 1 and e.kind == 'started' for e in master.execution_events()),
+                 0.5, 'A started')
+        # B, sent while A runs: from A's state (in actuator space) 0.7 s into A (near its
+        # highest speed), to rest at A's start lengths
+        t_b = t_a + 0.7
         q0, v0, a0 = knots_a.sample(t_b - t_a)
         q1 = lumbar_eq3(HOME)
         tb = np.linspace(0.0, 1.2, 61)
@@ -798,7 +835,8 @@ def test_halt_brakes_along_the_path_then_holds_in_quick_stop(rig):
     T = 1.6
     plan = _min_jerk_pose(HOME, goal, T)
     assert master.execute(_actuator_knots(plan, T), start=time.perf_counter() + 0.02, tag=1) is None
-    time.sleep(0.6)
+    wait_for(lambda: _fraction_done(master, lumbar_eq3(HOME), lumbar_eq3(goal)) >= 0.25, T,
+             'the motion a quarter of its way')
     master.halt()
     assert all(s is State402.QUICK_STOP_ACTIVE for s in master.feedback().states)
     assert np.all(np.abs(sim.truth().velocities) < 1e-9)

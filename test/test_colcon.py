@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 
-from ros_helpers import REPO, ros  # noqa: F401
+from ros_helpers import REPO
 
 pytestmark = [pytest.mark.slow, pytest.mark.ros]
 
@@ -88,7 +88,7 @@ def test_executable_starts_from_the_install_space(install, name):
 
 
 @pytest.mark.parametrize('name', NODES)
-def test_node_runs_with_the_installed_device_file_and_stops_on_ctrl_c(install, ros, name):  # noqa: F811
+def test_node_runs_with_the_installed_device_file_and_stops_on_ctrl_c(install, ros, name):
     prefix, _, env = install
     if not _module_written(name):
         pytest.skip(f'brace_control/nodes/{name}.py not written yet')

@@ -13,7 +13,7 @@ from sensor_msgs.msg import JointState
 from brace_control.config import ConfigError, load_device_config
 from brace_control.nodes.ik_node import IkNode
 from brace_control.nodes.msgs import pose_msg, sec_to_stamp, stamp_to_ns
-from ros_helpers import LUMBAR_YAML, RELIABLE_10, ros  # noqa: F401
+from ros_helpers import LUMBAR_YAML, RELIABLE_10
 
 pytestmark = pytest.mark.ros
 
@@ -35,7 +35,7 @@ def setpoint(pose, t: float = 100.0, frame: str = 'brace_base') -> PoseStamped:
 
 
 @pytest.fixture
-def rig(ros):  # noqa: F811
+def rig(ros):
     ik = ros.device_node(IkNode)
     test = ros.node('ik_test')
     out = ros.collect(test, JointState, '/brace/actuator_setpoint')
@@ -117,7 +117,7 @@ def test_no_setpoint_dropped_at_200_hz(rig):
     assert stamps == sorted(stamps) and len(set(stamps)) == n
 
 
-def test_out_of_range_parameter_fails_at_start_up(ros):  # noqa: F811
+def test_out_of_range_parameter_fails_at_start_up(ros):
     with pytest.raises(ConfigError, match='trajectory.rate_hz'):
         ros.device_node(IkNode, **{'trajectory.rate_hz': 0.0})
 
@@ -133,7 +133,7 @@ def _plan(t):
 
 
 @pytest.fixture
-def motion_rig(ros):  # noqa: F811
+def motion_rig(ros):
     from diagnostic_msgs.msg import DiagnosticStatus
     from trajectory_msgs.msg import JointTrajectory, MultiDOFJointTrajectory
 
@@ -207,7 +207,7 @@ def test_an_empty_trajectory_is_passed_on_as_a_stop(motion_rig):
     assert len(out[0].points) == 0 and stamp_to_ns(out[0].header.stamp) == 3_250_000_000
 
 
-def test_a_motion_with_no_driver_listening_is_rejected_not_lost(ros):  # noqa: F811
+def test_a_motion_with_no_driver_listening_is_rejected_not_lost(ros):
     """Nothing subscribes to /brace/actuator_trajectory (no driver): the converted motion
     would be lost on a topic that keeps no history; it is rejected with the reason instead."""
     from diagnostic_msgs.msg import DiagnosticStatus

@@ -20,7 +20,7 @@ from brace_control.nodes.kinetics_node import KineticsNode
 from brace_control.mechanisms import UnreachablePose, load_mechanism
 from brace_control.nodes.msgs import (joint_state, planar_pose_from_msg, pose_covariance_6x6,
                                       sec_to_stamp, stamp_to_ns)
-from ros_helpers import LUMBAR_YAML, RELIABLE_10, REPO, ros  # noqa: F401
+from ros_helpers import LUMBAR_YAML, RELIABLE_10, REPO
 
 pytestmark = pytest.mark.ros
 
@@ -82,7 +82,7 @@ def body_wrench_platform_frame(pose, forces) -> np.ndarray:
 
 
 @pytest.fixture
-def rig(ros):  # noqa: F811
+def rig(ros):
     kin = ros.device_node(KineticsNode)
     test = ros.node('kinetics_test')
     poses = ros.collect(test, PoseStamped, '/brace/pose')
@@ -246,7 +246,7 @@ def test_positions_outside_the_stroke_are_not_turned_into_a_pose(rig):
 
 
 @pytest.mark.parametrize('device', sorted(p.stem for p in (REPO / 'config').glob('*.yaml')))
-def test_every_device_file_gives_its_estimator_and_a_pose(ros, device):  # noqa: F811
+def test_every_device_file_gives_its_estimator_and_a_pose(ros, device):
     """The node reads actuator.stiffness, the encoder quantum and kinetics.* from each
     device file, and estimates the home pose from the home lengths."""
     path = REPO / 'config' / f'{device}.yaml'

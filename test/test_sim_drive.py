@@ -408,6 +408,36 @@ def test_master_heartbeat_loss_applies_6007h_quick_stop(rig: Rig) -> None:
     hb.stop()
 
 
+def _hold_the_gil(seconds: float) -> float:
+    """Stall every thread of this process for about ``seconds``, as a full garbage-collector
+    pass does: ``sum`` over a range runs in C and never hands the GIL over. Returns the
+    measured stall (s)."""
+    n = 200_000
+    t0 = time.perf_counter()
+    sum(range(n))
+    per_item = max((time.perf_counter() - t0) / n, 1e-9)
+    t0 = time.perf_counter()
+    sum(range(int(seconds / per_item)))
+    return time.perf_counter() - t0
+
+
+def test_a_stall_of_the_whole_host_process_does_not_trip_the_heartbeat_consumer(rig: Rig) -> None:
+    """The simulated drives live in this process: when it does not run at all (here: the GIL
+    held 3x the consumer time), their clock stands still with it (sim/host.py)."""
+    node = rig.node(3)
+    node.sdo[0x1016][1].raw = (127 << 16) | 100           # consumer time 100 ms
+    hb = rig.net.send_periodic(0x77F, b'\x05', 0.02)
+    enable_csp(rig, 3)
+    since = rig.rec.mark()
+    stalled = _hold_the_gil(0.3)
+    assert stalled > 0.2, f'the stall lasted {stalled:.3f} s; 0.3 s expected'
+    rig.rec.wait(cob(0x703), since=rig.rec.mark(), count=3)   # > 100 ms after it
+    hb.stop()
+    assert not rig.sim.drive(3).master_heartbeat_lost
+    assert not rig.rec.wait(cob(0x83), since=since, count=0), 'EMCY sent'
+    assert node.sdo[0x6041].raw & 0x6F == 0x27            # still OPERATION ENABLED
+
+
 # ---------------------------------------------------------------- fault injection
 
 def test_injected_heartbeat_silence_emcy_and_error_frames(rig: Rig) -> None:

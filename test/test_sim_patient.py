@@ -122,13 +122,13 @@ def test_a_rigid_device_feels_the_sway_and_the_effort_limit() -> None:
 
 
 @pytest.mark.parametrize('key, value, words', [
-    ('sway_amplitude', [0.0, 0.01], 'sim.sway_amplitude: expected 3 finite numbers'),
-    ('sway_amplitude', [0.0, float('nan'), 0.0], 'sim.sway_amplitude: expected 3 finite'),
-    ('sway_frequency_hz', -0.2, 'sim.sway_frequency_hz'),
-    ('patient_max_wrench', [10.0, -1.0, 1.0], 'sim.patient_max_wrench: expected numbers >= 0'),
+    ('sway_amplitude', [0.0, 0.01], r'sim\.sway_amplitude: expected 3 finite numbers'),
+    ('sway_amplitude', [0.0, float('nan'), 0.0], r"sim\.sway_amplitude.*non-finite"),
+    ('sway_frequency_hz', -0.2, r'sim\.sway_frequency_hz'),
+    ('patient_max_wrench', [10.0, -1.0, 1.0], r"sim\.patient_max_wrench.*out of range"),
 ])
 def test_bad_patient_parameters_are_config_errors(key: str, value: object, words: str) -> None:
-    with pytest.raises(ConfigError, match=words.replace('.', r'\.')):
+    with pytest.raises(ConfigError, match=words):
         lumbar(**{key: value})
 
 

@@ -19,7 +19,7 @@ from typing import Any
 import canopen
 import numpy as np
 
-from ..config import ConfigError, DeviceConfig
+from ..config import ConfigError, DeviceConfig, as_device_config
 from .cia402 import State402, decode_state
 from .pdo import LOAD_CELL_INPUT, TORQUE_ACTUAL
 from .supervision import Fault, Limits, Sample
@@ -83,17 +83,19 @@ class MasterConfig:
     @classmethod
     def from_device_config(cls, cfg: Mapping[str, Any], *, channel: str | None = None,
                            home_lengths: Sequence[float] | None = None,
-                           **overrides: Any) -> MasterConfig:
+                           mechanism: Any = None, **overrides: Any) -> MasterConfig:
         """Build from a :class:`~brace_control.config.DeviceConfig` (or nested mapping).
 
         ``home_lengths`` (m per actuator) default to IK(``mechanism.home_pose``) when the
         mechanism model can be built. ``channel`` and ``overrides`` replace YAML values.
+        ``mechanism``: the model of ``cfg``'s mechanism, already built by the caller (the CAN
+        driver builds one per process); default: built here from ``cfg``.
 
         :raises ConfigError: a missing or inconsistent parameter, named.
         """
-        dc = cfg if isinstance(cfg, DeviceConfig) else DeviceConfig(cfg)
+        dc = as_device_config(cfg)      # checked against brace_control.schema, defaults filled
         scaling = scaling_from_config(dc)
-        limits = Limits.from_config(dc, scaling)
+        limits = Limits.from_config(dc, scaling, mechanism=mechanism)
         node_ids = tuple(int(i) for i in dc.get_path('can.node_ids'))
         names = tuple(str(n) for n in dc.get_path('mechanism.actuator_names',
                                                   [f'a{i + 1}' for i in range(len(node_ids))]))
@@ -102,17 +104,17 @@ class MasterConfig:
                               f'{len(names)} actuators {list(names)}')
         if len(set(node_ids)) != len(node_ids) or not all(1 <= i <= 127 for i in node_ids):
             raise ConfigError(f'parameter can.node_ids = {list(node_ids)}: distinct ids 1..127 expected')
-        master_id = int(dc.get_path('can.master_node_id', 127))
+        master_id = int(dc.get_path('can.master_node_id'))
         if master_id in node_ids:
             raise ConfigError(f'parameter can.master_node_id = {master_id} collides with a drive id')
-        eds_name = str(dc.get_path('can.eds', '') or '')
+        eds_name = str(dc.get_path('can.eds') or '')
         eds = dc.relative_file(eds_name) if eds_name else None
         if eds is not None and not eds.is_file():
             from ..config import config_dir
             alt = config_dir() / eds_name
             eds = alt if alt.is_file() else None
         if home_lengths is None:
-            home_lengths = _home_lengths(dc)
+            home_lengths = _home_lengths(dc, mechanism)
         values: dict[str, Any] = dict(
             interface=str(dc.get_path('can.interface')),
             channel=channel or str(dc.get_path('can.channel')),
@@ -124,23 +126,26 @@ class MasterConfig:
             heartbeat_consumer_ms=int(dc.get_path('can.heartbeat_consumer_ms')),
             master_heartbeat_ms=int(dc.get_path('can.master_heartbeat_ms')),
             master_node_id=master_id,
-            homing_method=int(dc.get_path('can.homing_method', 35)),
-            frame_log=str(dc.get_path('can.frame_log', '') or ''),
-            spin_s=float(dc.get_path('can.sync_spin_us', 300)) * 1e-6,
-            thread_priority=int(dc.get_path('can.sync_thread_priority', 0)),
+            homing_method=int(dc.get_path('can.homing_method')),
+            frame_log=str(dc.get_path('can.frame_log') or ''),
+            spin_s=float(dc.get_path('can.sync_spin_us')) * 1e-6,
+            thread_priority=int(dc.get_path('can.sync_thread_priority')),
             following_error_window=float(dc.get_path('safety.following_error_window')),
             scaling=scaling, limits=limits,
             home_lengths=None if home_lengths is None else tuple(float(x) for x in home_lengths),
             # linear actuators carry a load cell on 2401h; rotary drives report 6077h torque
             force_object=(LOAD_CELL_INPUT if actuator_kind(dc) == 'linear' else TORQUE_ACTUAL),
-            stiffness=float(dc.get_path('actuator.stiffness', 1.0e6)),
+            stiffness=float(dc.get_path('actuator.stiffness')),
         )
         values.update(overrides)
         return cls(**values)
 
 
-def _home_lengths(cfg: DeviceConfig) -> tuple[float, ...] | None:
-    """IK(home_pose) of the device's mechanism, or ``None`` if the model is unavailable."""
+def _home_lengths(cfg: DeviceConfig, mech: Any = None) -> tuple[float, ...] | None:
+    """IK(home_pose) of the device's mechanism (``mech``, else built from ``cfg``), or
+    ``None`` if the model is unavailable."""
+    if mech is not None:
+        return tuple(float(x) for x in mech.inverse(mech.home_pose))
     if 'mechanism' not in cfg:
         return None
     try:

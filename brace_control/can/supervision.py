@@ -50,7 +50,7 @@ from typing import Any
 
 import can
 
-from ..config import ConfigError
+from ..config import ConfigError, as_device_config
 from .units import AxisScaling
 
 __all__ = [
@@ -232,17 +232,16 @@ class Limits:
         return self.strokes[index]
 
     @classmethod
-    def from_config(cls, cfg: Mapping[str, Any], scaling: AxisScaling) -> Limits:
-        """Read the thresholds; :class:`ConfigError` names a missing parameter."""
-        def get(dotted: str) -> Any:
-            node: Any = cfg
-            for key in dotted.split('.'):
-                if not isinstance(node, Mapping) or key not in node:
-                    raise ConfigError(f'parameter {dotted!r} is missing')
-                node = node[key]
-            return node
+    def from_config(cls, cfg: Mapping[str, Any], scaling: AxisScaling, *,
+                    mechanism: Any = None) -> Limits:
+        """Read the thresholds; :class:`ConfigError` names a missing, unknown or out-of-range
+        parameter (a dict is checked against :mod:`brace_control.schema` like a file).
+        ``mechanism``: the model of ``cfg``'s mechanism if the caller has built it (else
+        built here)."""
+        cfg = as_device_config(cfg)
+        get = cfg.get_path
         mech = cfg.get('mechanism', {}) if isinstance(cfg.get('mechanism'), Mapping) else {}
-        strokes = _actuator_limits(cfg)
+        strokes = _actuator_limits(cfg, mechanism)
         if strokes is not None:
             lo, hi = min(s[0] for s in strokes), max(s[1] for s in strokes)
         else:
@@ -258,9 +257,8 @@ class Limits:
                 f'parameter can.heartbeat_consumer_ms = {consumer:g} must exceed '
                 f'can.drive_heartbeat_ms = {producer:g} (SAFETY.md item 2)')
         force_limit = float(get('safety.force_limit'))
-        safety = cfg.get('safety', {}) if isinstance(cfg.get('safety'), Mapping) else {}
-        soft = float(safety.get('soft_force_limit', 0.0) or 0.8 * force_limit)
-        release = float(safety.get('release_force', 0.0) or 0.2 * force_limit)
+        soft = float(get('safety.soft_force_limit') or 0.8 * force_limit)
+        release = float(get('safety.release_force') or 0.2 * force_limit)
         if not 0.0 < soft <= force_limit:
             raise ConfigError(f'parameter safety.soft_force_limit = {soft:g} must be in (0, '
                               f'safety.force_limit = {force_limit:g}] (SAFETY.md 14)')
@@ -329,9 +327,14 @@ def check_step(drive: str, current: float, new: float, dt: float, limits: Limits
     return None
 
 
-def _actuator_limits(cfg: Mapping[str, Any]) -> tuple[tuple[float, float], ...] | None:
-    """Per-actuator ranges from the mechanism model (``mechanism.actuator_limits``), or
-    ``None`` when the config holds no buildable mechanism (then ``stroke_min/max`` apply)."""
+def _actuator_limits(cfg: Mapping[str, Any], mechanism: Any = None
+                     ) -> tuple[tuple[float, float], ...] | None:
+    """Per-actuator ranges from the mechanism model (``mechanism.actuator_limits``; the given
+    model, else one built from ``cfg``), or ``None`` when the config holds no buildable
+    mechanism (then ``stroke_min/max`` apply)."""
+    if mechanism is not None:
+        lo, hi = mechanism.actuator_limits
+        return tuple((float(a), float(b)) for a, b in zip(lo, hi))
     if not isinstance(cfg.get('mechanism'), Mapping) or 'type' not in cfg['mechanism']:
         return None
     try:

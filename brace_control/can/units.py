@@ -21,7 +21,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from ..config import ConfigError
+from ..config import ConfigError, as_device_config
 
 __all__ = ['AxisScaling', 'scaling_from_config', 'actuator_kind', 'rated_joint_torque', 'INT16_MIN', 'INT16_MAX', 'INT32_MIN', 'INT32_MAX']
 
@@ -108,70 +108,53 @@ class AxisScaling:
 
 
 def actuator_kind(cfg: Mapping[str, Any]) -> str:
-    """``'linear'`` or ``'rotary'``: ``actuator.kind`` when given, else ``'linear'`` when the
-    section has a ``screw_lead`` and ``'rotary'`` when it has none."""
-    act = cfg.get('actuator') if isinstance(cfg.get('actuator'), Mapping) else {}
-    kind = act.get('kind')
-    if kind is None:
-        return 'linear' if 'screw_lead' in act else 'rotary'
-    if kind not in ('linear', 'rotary'):
-        raise ConfigError(f'parameter actuator.kind = {kind!r}; expected "linear" or "rotary"')
-    return str(kind)
+    """``'linear'`` or ``'rotary'``: ``actuator.kind`` (schema default ``linear``)."""
+    return str(as_device_config(cfg).get_path('actuator.kind'))
 
 
 def scaling_from_config(cfg: Mapping[str, Any]) -> AxisScaling:
     """The device's :class:`AxisScaling` from its YAML (``actuator.*``).
 
-    ``actuator.kind`` (see :func:`actuator_kind`) selects the axis. Linear: counts/m from
+    ``actuator.kind`` selects the axis. Linear: counts/m from
     ``encoder_counts_per_rev / screw_lead``, the load cell 2401h in N
     (``load_cell_n_per_count``, ``load_cell_rated_force``). Rotary: counts/rad from
     ``encoder_counts_per_rev × gear_ratio / 2π``, the torque actual 6077h in ‰ of the
     motor's rated torque ``rated_current × torque_constant``, so N·m per count at the
     joint = ``rated_current × torque_constant × gear_ratio / 1000`` and the full scale
-    (saturation) is 1000 ‰.
+    (saturation) is 1000 ‰; without ``rated_current`` and ``torque_constant`` the torque
+    reading is scaled like a load cell. Types, ranges and defaults: :mod:`brace_control.schema`.
 
-    :raises ConfigError: a missing or non-positive value, naming the parameter.
+    :raises ConfigError: a missing, out-of-range or unknown parameter, naming it.
     """
-    act = cfg.get('actuator') if isinstance(cfg.get('actuator'), Mapping) else None
-    if act is None:
-        raise ConfigError('device config has no "actuator" section')
-
-    def num(key: str) -> float:
-        if key not in act:
-            raise ConfigError(f'parameter actuator.{key!r} is missing')
-        v = act[key]
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-            raise ConfigError(f'parameter actuator.{key} = {v!r} must be a positive number')
-        return float(v)
-
-    cpr = num('encoder_counts_per_rev')
-    if actuator_kind(cfg) == 'linear':
-        return AxisScaling.linear(encoder_counts_per_rev=int(cpr), screw_lead_m=num('screw_lead'),
-                                  newton_per_count=num('load_cell_n_per_count'),
-                                  rated_force_n=num('load_cell_rated_force'))
-    gear = num('gear_ratio') if 'gear_ratio' in act else 1.0
+    dc = as_device_config(cfg)
+    act = dc.section('actuator')
+    cpr = int(act['encoder_counts_per_rev'])
+    if actuator_kind(dc) == 'linear':
+        if 'screw_lead' not in act:
+            raise ConfigError("parameter 'actuator.screw_lead' is missing (m per motor revolution of "
+                              'a linear actuator)')
+        return AxisScaling.linear(encoder_counts_per_rev=cpr, screw_lead_m=float(act['screw_lead']),
+                                  newton_per_count=float(act['load_cell_n_per_count']),
+                                  rated_force_n=float(act['load_cell_rated_force']))
+    gear = float(act['gear_ratio'])
     if 'rated_current' in act or 'torque_constant' in act:
-        rated = rated_joint_torque(cfg)
-        return AxisScaling.rotary(encoder_counts_per_rev=int(cpr), gear_ratio=gear,
+        rated = rated_joint_torque(dc)
+        return AxisScaling.rotary(encoder_counts_per_rev=cpr, gear_ratio=gear,
                                   newton_metre_per_count=rated / 1000.0, rated_torque_nm=rated)
     # no motor data: the torque reading scaled like a load cell (N·m per count)
-    return AxisScaling.rotary(encoder_counts_per_rev=int(cpr), gear_ratio=gear,
-                              newton_metre_per_count=num('load_cell_n_per_count'),
-                              rated_torque_nm=num('load_cell_rated_force'))
+    return AxisScaling.rotary(encoder_counts_per_rev=cpr, gear_ratio=gear,
+                              newton_metre_per_count=float(act['load_cell_n_per_count']),
+                              rated_torque_nm=float(act['load_cell_rated_force']))
 
 
 def rated_joint_torque(cfg: Mapping[str, Any]) -> float:
     """Joint torque (N·m) at 1000 ‰ of 6077h: ``rated_current × torque_constant × gear_ratio``.
 
-    :raises ConfigError: a missing or non-positive value, naming the parameter.
+    :raises ConfigError: a missing or out-of-range value, naming the parameter.
     """
-    act = cfg.get('actuator') if isinstance(cfg.get('actuator'), Mapping) else {}
-    vals = []
-    for key in ('rated_current', 'torque_constant', 'gear_ratio'):
-        v = act.get(key, 1.0 if key == 'gear_ratio' else None)
-        if v is None:
-            raise ConfigError(f'parameter actuator.{key!r} is missing (rotary drive: torque actual 6077h scaling)')
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-            raise ConfigError(f'parameter actuator.{key} = {v!r} must be a positive number')
-        vals.append(float(v))
-    return vals[0] * vals[1] * vals[2]
+    act = as_device_config(cfg).section('actuator')
+    for key in ('rated_current', 'torque_constant'):
+        if key not in act:
+            raise ConfigError(f'parameter {"actuator." + key!r} is missing (rotary drive: torque actual '
+                              '6077h scaling)')
+    return float(act['rated_current']) * float(act['torque_constant']) * float(act['gear_ratio'])

@@ -26,6 +26,7 @@ from typing import Any, NamedTuple, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
+from .. import schema
 from ..config import ConfigError, points
 from .capacity import (capacity_closed_form, capacity_lp, capacity_one_redundancy, regular_inverse,
                        unsupported_axes)
@@ -587,7 +588,10 @@ class MechanismBase:
 
 # ---------------------------------------------------------------------- from_config plumbing
 def check_section(section: Any, type_name: str, cls_name: str, required: Sequence[str]) -> None:
-    """The YAML ``mechanism`` section is a mapping of ``type_name`` holding every ``required`` key.
+    """The YAML ``mechanism`` section is a mapping of ``type_name`` holding every ``required`` key,
+    and no key, type or range that :data:`brace_control.schema.MECHANISM_SCHEMAS` does not allow
+    for ``type_name`` (every ``from_config`` passes here: the one check of a section built in
+    Python).
 
     :raises ConfigError: naming what is wrong.
     """
@@ -596,6 +600,7 @@ def check_section(section: Any, type_name: str, cls_name: str, required: Sequenc
     kind = section.get('type', type_name)
     if kind != type_name:
         raise ConfigError(f'mechanism.type is {kind!r}, {cls_name} needs "{type_name}"')
+    schema.validate({'mechanism': {**section, 'type': type_name}})
     for key in required:
         if key not in section:
             raise ConfigError(f'parameter mechanism.{key} is missing')

@@ -5,7 +5,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
-from ..config import ConfigError, DeviceConfig, load_device_config
+from ..config import ConfigError, DeviceConfig, as_device_config, load_device_config
 from .base import Mechanism
 
 __all__ = ['load_mechanism', 'mechanism_from_config', 'MECHANISM_TYPES', 'register']
@@ -23,8 +23,12 @@ def register(type_name: str) -> Callable:
 
 
 def mechanism_from_config(cfg: DeviceConfig | Mapping[str, Any]) -> Mechanism:
-    """The mechanism of an already loaded device config."""
-    section = cfg.get('mechanism') if isinstance(cfg, Mapping) else None
+    """The mechanism of an already loaded device config (a nested dict is checked against
+    :mod:`brace_control.schema` first, like a file)."""
+    if not isinstance(cfg, Mapping):
+        raise ConfigError(f'device config: expected a mapping, got {type(cfg).__name__}')
+    cfg = as_device_config(cfg)
+    section = cfg.get('mechanism')
     if not isinstance(section, Mapping):
         raise ConfigError('device config has no "mechanism" section')
     kind = section.get('type')

@@ -1,6 +1,46 @@
-"""can_driver_node: the brace's CiA 402 drives on CAN, as ROS topics and services.
+"""can_driver_node: the brace's CiA 402 drives on CAN, as a ROS 2 lifecycle (managed) node.
 
-``ros2 run brace_control can_driver_node --ros-args --params-file config/lumbar_brace.yaml``
+``ros2 run brace_control can_driver_node [--manual-lifecycle] --ros-args --params-file config/lumbar_brace.yaml``
+
+A hardware driver is a lifecycle node (``rclpy.lifecycle``, like ros2_canopen's drivers and
+ros2_control's hardware components); ``/can_driver_node/change_state``, ``get_state``,
+``get_available_transitions`` ... (``lifecycle_msgs``) drive it, e.g. ``ros2 lifecycle set
+/can_driver_node configure``:
+
+* **unconfigured** (after construction; after ``cleanup``; after a failed ``configure`` or an
+  error): no bus is open, nothing is sent;
+* ``configure``: open the bus (``can.sim``: first start the simulated brace on the same
+  python-can channel), boot the drives (NMT, the SDO configuration and PDO mapping of
+  docs/can.md, NMT OPERATIONAL); a drive that does not boot, a bus that does not open or an
+  SDO a drive rejects: FAILURE, logged with the cause, everything opened is closed again and
+  the node stays unconfigured;
+* **inactive**: the drives are configured, OPERATIONAL and SWITCH ON DISABLED (power stage
+  off). The SYNC cycle runs from the boot on: the boot proves each drive answers SYNC with its
+  TPDO, and the supervision (heartbeats, stale encoders, EMCY; SAFETY.md 2, 9) judges those
+  answers; a fault while inactive is latched and reported. Nothing can move: motion services
+  are refused, trajectories and setpoints rejected, no ``/brace/joint_states`` (ros2_control's
+  INACTIVE: "states can be read, command interfaces are not available");
+* ``activate``: commands are accepted (``~/home``, ``~/enable``, trajectories, setpoints) and
+  ``/brace/joint_states`` and the simulator's truth are published (lifecycle publishers). The
+  drives stay disabled until ``~/home`` and ``~/enable``;
+* ``deactivate``: stop taking commands, brake a running motion along its path (all axes on
+  one time base), then disable the drives (SWITCH ON DISABLED) and stop publishing. Refused
+  (FAILURE, the node stays active) while a protective stop is latched and a drive still holds
+  the load in QUICK STOP ACTIVE: ``~/relieve`` and ``~/recover`` need the node active
+  (SAFETY.md 15: nobody stays clamped); ``shutdown`` powers the drives off regardless;
+* ``cleanup``: close the bus (drives disabled, NMT pre-operational, SYNC stopped, the
+  simulated brace powered off; it keeps its physical pose for the next ``configure``);
+* ``shutdown`` (from any state) closes as cleanup does; an exception inside a transition is
+  logged with its traceback and ends in ERROR; ``on_error`` disables the drives, closes the bus
+  and returns to unconfigured.
+
+``std_srvs/Trigger`` services called in a state that does not allow them answer
+``success=False`` with the lifecycle state in the message (``~/disable`` is allowed when
+inactive too). Without ``--manual-lifecycle`` the executable configures and activates the node
+itself at start-up (exit code 1 if that fails); ``brace-bringup`` and ``launch/brace.launch.py``
+bring it to active the same way unless told ``--manual-lifecycle`` / ``manual_lifecycle:=true``.
+
+When active:
 
 * subscribes ``/brace/actuator_trajectory`` (``trajectory_msgs/JointTrajectory``, by
   actuator name): a planned motion, executed in the SYNC thread (ros2_control's
@@ -62,9 +102,18 @@ subscribes to it):
   patient's body rests (the body's stiffness pulls the ring towards it; the sway is
   added on top).
 
+One mechanism model per driver process: the node builds it once and hands it to the master
+(home lengths, actuator ranges) and to the simulated brace. The mechanism classes keep no
+per-call state (every attribute is set in their constructor, every method reads only, the
+arrays they hand out are copies), so the executor thread (wrench check, ground truth), the SYNC
+thread (the soft-limit context) and the simulator's receive thread may call one instance at
+the same time. The simulator's second model (its stroke widened by 1 cm for the physics at the
+end stops) is a different mechanism and stays its own.
+
 In-process use (one-process bring-up, tests)::
 
     node = CanDriverNode(context=ctx, cli_args=['--ros-args', '--params-file', yaml])
+    node.autostart()                  # configure + activate; DriverError if either fails
     ...
     node.shutdown(); node.destroy_node()
 """
@@ -74,20 +123,24 @@ import math
 import sys
 import threading
 import time
+import traceback
 from collections.abc import Callable, Sequence
 from typing import Any
 
+import can
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.task import Future
-from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 
-from ..can import (ActuatorTrajectory, BraceMaster, DriverError, FaultKind, MasterConfig,
+from ..can import (ActuatorTrajectory, BraceMaster, DriverError, DriverInitializationError,
+                   FaultKind, MasterConfig,
                    MasterState, State402, TrajectoryInvalid)
+from ..config import ConfigError
 from . import topics
 from .msgs import (MalformedMessage, joint_knots_from_msg, joint_state, joint_state_arrays,
                    ns_to_stamp, stamp_to_ns, status_msg)
@@ -101,40 +154,48 @@ REJECT_LOG_PERIOD = 1.0
 #: Hz: execution events and the driver state are published this often (when they change)
 EVENT_RATE_HZ = 50.0
 
+#: lifecycle states in which a Trigger service is taken
+ACTIVE = frozenset({'active'})
+CONFIGURED = frozenset({'inactive', 'active'})
+#: what a failed configure expects (a bus, a drive, a parameter of the simulator); anything
+#: else is a bug: ERROR, with its traceback
+_EXPECTED_ERRORS = (DriverError, ConfigError, can.CanError, OSError)
+
 _LEVEL = {'ok': DiagnosticStatus.OK, 'warn': DiagnosticStatus.WARN, 'error': DiagnosticStatus.ERROR}
 
 
-class CanDriverNode(Node):
-    """The CAN driver: a :class:`~brace_control.can.BraceMaster` behind topics and services.
+class CanDriverNode(LifecycleNode):
+    """The CAN driver: a :class:`~brace_control.can.BraceMaster` behind topics and services,
+    managed by the ROS 2 lifecycle (module docstring).
+
+    The constructor reads and checks the parameters and builds the mechanism model; it opens
+    no bus (the node starts unconfigured). :meth:`autostart` (or ``ros2 lifecycle set``, or a
+    ``lifecycle_msgs/ChangeState`` call) configures and activates it.
 
     :param node_name: ROS node name (services are ``~/enable`` etc. under it).
-    :param boot: boot the drives in the constructor (else call :meth:`start`).
-    :param kwargs: passed to :class:`rclpy.node.Node` (``context``, ``cli_args``,
-        ``parameter_overrides``, ...).
-    :raises ConfigError: a bad parameter (named); :raises DriverError: the bus or a drive
-        did not come up (the message says which).
+    :param kwargs: passed to :class:`rclpy.lifecycle.LifecycleNode` (``context``,
+        ``cli_args``, ``parameter_overrides``, ...).
+    :raises ConfigError: a bad parameter (named).
     """
 
-    def __init__(self, *, node_name: str = 'can_driver_node', boot: bool = True,
-                 **kwargs: Any) -> None:
-        self._closed = False
+    def __init__(self, *, node_name: str = 'can_driver_node', **kwargs: Any) -> None:
         self.sim: Any = None
         self.master: BraceMaster | None = None
+        self._lifecycle = 'unconfigured'
+        self._active = False
+        #: why the last transition failed ('' if it did not): :meth:`autostart` raises it
+        self.last_transition_error = ''
+        # transitions and the services' work never overlap: a transition waits for a running
+        # service (a 402 transition, a relief) and a service never sees the bus half closed
+        self._transition_lock = threading.RLock()
+        self._previous_switch_interval: float | None = None
+        self._constructed = False             # a ConfigError leaves a half-built node to destroy
         super().__init__(node_name, **kwargs)
         self.cfg = declare_device_parameters(self, ('mechanism', 'actuator', 'can', 'safety', 'sim',
                                                      'trajectory', 'interaction'))
         self.names: tuple[str, ...] = tuple(self.cfg['mechanism']['actuator_names'])
         self.mechanism = self._mechanism()
-        self.master_config = MasterConfig.from_device_config(self.cfg)
-        switch_us = int(self.cfg['can']['gil_switch_interval_us'])
-        self._previous_switch_interval = sys.getswitchinterval()
-        if switch_us > 0:
-            # process-wide: a thread busy in Python (executor, simulator) then holds the GIL
-            # at most this long when the SYNC thread wakes (Python's default: 5 ms);
-            # restored on shutdown (in-process bring-ups, tests)
-            sys.setswitchinterval(switch_us * 1e-6)
-        self.master = BraceMaster(self.master_config)
-        self.master.soft_limit_context = self._soft_limit_context
+        self.master_config = MasterConfig.from_device_config(self.cfg, mechanism=self.mechanism)
         self.rejected = 0
         self.accepted = 0
         self.last_rejection = ''
@@ -149,11 +210,15 @@ class CanDriverNode(Node):
         self._last_faults: tuple = ()
         # services take up to seconds (402 transitions, braking, a relief): their work runs in
         # a thread and the callback awaits it (_trigger), so one thread of an executor serves
-        # the streams meanwhile; a multi-threaded executor would cost a core share for nothing
+        # the streams meanwhile; a multi-threaded executor would cost a core share for nothing.
+        # The lifecycle services run in the node's default group (nothing else uses it).
         self._service_group = MutuallyExclusiveCallbackGroup()
         self._stream_group = MutuallyExclusiveCallbackGroup()
         self._service_lock = _AsyncLock()
-        self._js_pub = self.create_publisher(JointState, topics.JOINT_STATES, topics.STATE_QOS)
+        # measurements flow only when active (lifecycle publishers); the driver's state, the
+        # trajectories' events and the diagnostics are published in every state: they say
+        # why nothing moves (an inactive driver answers a trajectory "rejected", with why)
+        self._js_pub = self.create_lifecycle_publisher(JointState, topics.JOINT_STATES, topics.STATE_QOS)
         self._diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS,
                                                topics.DIAGNOSTICS_QOS)
         self._exec_pub = self.create_publisher(DiagnosticStatus, topics.EXECUTION_STATUS,
@@ -170,20 +235,28 @@ class CanDriverNode(Node):
         self._traj_sub = self.create_subscription(JointTrajectory, topics.ACTUATOR_TRAJECTORY,
                                                   self._on_trajectory, topics.TRAJECTORY_QOS,
                                                   callback_group=self._stream_group)
-        for name, fn in (('enable', self._enable), ('disable', self._disable), ('halt', self._halt),
-                         ('recover', self._recover), ('home', self._home), ('relieve', self._relieve)):
-            self.create_service(Trigger, f'~/{name}', self._trigger(name, fn),
+        for name, fn, allowed in (('enable', self._enable, ACTIVE), ('disable', self._disable, CONFIGURED),
+                                  ('halt', self._halt, ACTIVE), ('recover', self._recover, ACTIVE),
+                                  ('home', self._home, ACTIVE), ('relieve', self._relieve, ACTIVE)):
+            self.create_service(Trigger, f'~/{name}', self._trigger(name, fn, allowed),
                                 callback_group=self._service_group)
         self._init_interaction()
         rate = float(self.cfg['can']['joint_state_rate_hz'])
+        # timers of the active state are created cancelled (rclpy's create_timer has no
+        # autostart in Humble) and reset on activate
         self._js_timer = self.create_timer(1.0 / rate, timer_callback(self._publish_joint_states),
                                            callback_group=self._stream_group)
+        self._js_timer.cancel()
         self._diag_timer = self.create_timer(1.0, timer_callback(self.publish_diagnostics),
                                              callback_group=self._stream_group)
         self._event_timer = self.create_timer(1.0 / EVENT_RATE_HZ, timer_callback(self.publish_events),
                                               callback_group=self._stream_group)
-        if boot:
-            self.start()
+        self._event_timer.cancel()
+        self._truth_timer: Any = None
+        if self.cfg['can']['sim']:
+            self._truth_publishers()
+        self._constructed = True
+        self.publish_state(force=True)
 
     def _mechanism(self) -> Any:
         try:
@@ -200,33 +273,200 @@ class CanDriverNode(Node):
 
     # ------------------------------------------------------------------ lifecycle
 
-    def start(self) -> None:
-        """Start the simulated brace (``can.sim``) and boot the drives.
+    @property
+    def lifecycle_state(self) -> str:
+        """The primary lifecycle state: ``unconfigured``, ``inactive``, ``active`` or ``finalized``."""
+        return self._lifecycle
+
+    def autostart(self) -> None:
+        """Configure and activate (what ``brace-bringup`` and the executable do unless
+        ``--manual-lifecycle``).
+
+        :raises DriverError: a transition failed (the message says which and why); the node is
+            then unconfigured (configure failed) or inactive (activate failed).
+        """
+        for name, trigger in (('configure', self.trigger_configure), ('activate', self.trigger_activate)):
+            self.last_transition_error = ''
+            if trigger() != TransitionCallbackReturn.SUCCESS:
+                raise DriverInitializationError(
+                    self.last_transition_error or f'{name} failed (node {self._lifecycle})')
+
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Open the bus (``can.sim``: start the simulated brace first), boot and configure the
+        drives. SUCCESS: inactive, drives OPERATIONAL and disabled. FAILURE (the bus did not
+        open, a drive did not boot or rejected its set-up, a bad simulator parameter): all
+        opened is closed again, the cause logged, the node stays unconfigured. ERROR (an
+        unexpected exception): logged with its traceback, then :meth:`on_error`."""
+        with self._transition_lock:
+            try:
+                self._open()
+            except _EXPECTED_ERRORS as exc:
+                self._close()
+                return self._failed('configure', f'{exc}; the node stays unconfigured',
+                                    TransitionCallbackReturn.FAILURE)
+            except Exception as exc:  # noqa: BLE001 - a transition must answer
+                self._close()
+                return self._failed('configure', repr(exc), TransitionCallbackReturn.ERROR, trace=True)
+            self._set_lifecycle('inactive')
+            self._event_timer.reset()
+            mc = self.master_config
+            self.get_logger().info(
+                f'configured: {len(self.names)} drives OPERATIONAL (nodes {list(mc.node_ids)}) on '
+                f'{mc.interface}:{mc.channel}, SYNC {mc.sync_rate_hz:g} Hz, drives disabled; '
+                'activate to command them')
+            return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Accept commands, publish joint states and the simulator's truth. The drives stay
+        disabled (``~/home``, ``~/enable``). FAILURE: the bus is not open (not configured)."""
+        with self._transition_lock:
+            if self.master is None:
+                return self._failed('activate', 'the bus is not open (configure first)',
+                                    TransitionCallbackReturn.FAILURE)
+            ret = super().on_activate(state)          # the lifecycle publishers
+            if ret != TransitionCallbackReturn.SUCCESS:
+                return self._failed('activate', 'a lifecycle publisher did not activate', ret)
+            self._active = True
+            self._set_lifecycle('active')
+            self._js_timer.reset()
+            if self._truth_timer is not None:
+                self._truth_timer.reset()
+            self.get_logger().info(f'active: drives {self.master.state.value}; call ~/home then ~/enable')
+            return TransitionCallbackReturn.SUCCESS
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Stop taking commands, brake a running motion along its path, disable the drives,
+        stop publishing measurements. FAILURE (still active): a protective stop is latched and
+        a drive holds the load (relieve and recover first, or shut down). ERROR: the drives did
+        not reach SWITCH ON DISABLED (:meth:`on_error` then powers them off with the bus)."""
+        with self._transition_lock:
+            m = self.master
+            if m is None:
+                return self._failed('deactivate', 'the bus is not open', TransitionCallbackReturn.FAILURE)
+            holding = [d.name for d in m.status().drives
+                       if d.state in (State402.QUICK_STOP_ACTIVE, State402.OPERATION_ENABLED)]
+            if m.supervisor.latched and holding:
+                return self._failed(
+                    'deactivate',
+                    f'a protective stop is latched ({m.supervisor.summary()}) and drive(s) '
+                    f'{holding} hold the load in quick stop; call ~/relieve and ~/recover while '
+                    'active, then deactivate (or shutdown to power the drives off as they are)',
+                    TransitionCallbackReturn.FAILURE)
+            self._active = False                      # no new command from here on
+            self._js_timer.cancel()
+            if self._truth_timer is not None:
+                self._truth_timer.cancel()
+            try:
+                m.disable()                           # brakes along the path first
+            except Exception as exc:  # noqa: BLE001 - a transition must answer
+                return self._failed('deactivate', f'the drives were not disabled: {exc}',
+                                    TransitionCallbackReturn.ERROR)
+            super().on_deactivate(state)
+            self._set_lifecycle('inactive')
+            where = f' at {self._positions()}' if m.homed else ''
+            self.get_logger().info(f'inactive: drives disabled{where}')
+            return TransitionCallbackReturn.SUCCESS
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Close the bus (drives disabled, NMT pre-operational, SYNC stopped), power the
+        simulated brace off. SUCCESS: unconfigured."""
+        with self._transition_lock:
+            self._close()
+            self._set_lifecycle('unconfigured')
+            self.get_logger().info('cleaned up: CAN bus closed')
+            return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """From any state: disable the drives (whatever a protective stop says), close the bus.
+        SUCCESS: finalized."""
+        with self._transition_lock:
+            self._close()
+            super().on_deactivate(state)
+            self._set_lifecycle('finalized')
+            self.get_logger().info(f'shut down (from {state.label}): drives disabled, CAN bus closed')
+            return TransitionCallbackReturn.SUCCESS
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """A transition raised or ended in ERROR: power the drives off (SWITCH ON DISABLED,
+        whatever a protective stop says), close the bus. SUCCESS: unconfigured."""
+        with self._transition_lock:
+            self._close()
+            super().on_deactivate(state)
+            self._set_lifecycle('unconfigured')
+            self.get_logger().error(f'error during a transition from {state.label}: drives disabled, '
+                                    'CAN bus closed; the node is unconfigured')
+            return TransitionCallbackReturn.SUCCESS
+
+    def _failed(self, transition: str, why: str, ret: TransitionCallbackReturn, *,
+                trace: bool = False) -> TransitionCallbackReturn:
+        """Log a failed transition (the reason, or the traceback) and return ``ret``."""
+        self.last_transition_error = f'{transition} failed: {why}'
+        text = self.last_transition_error + (f'\n{traceback.format_exc()}' if trace else '')
+        self.get_logger().error(text)
+        return ret
+
+    def _set_lifecycle(self, label: str) -> None:
+        self._lifecycle = label
+        self.publish_state(force=True)
+
+    def _open(self) -> None:
+        """Start the simulated brace (``can.sim``) and boot the drives (a new master: one
+        master object per configure, its supervision and statistics start afresh).
 
         :raises DriverError: the bus could not be opened or a drive did not boot.
         """
-        can_cfg = self.cfg['can']
-        if can_cfg['sim'] and self.sim is None:
-            from ..sim import SimulatedBrace
-            # the EDS as the master resolved it (the node's parameters carry no file path)
-            self.sim = SimulatedBrace(self.cfg, channel=self.master_config.channel,
-                                      interface=self.master_config.interface,
-                                      eds=self.master_config.eds)
-            self.get_logger().info(f'simulated brace on {self.master_config.interface}:'
-                                   f'{self.master_config.channel}')
-            self._start_truth()
-        try:
-            self.master.boot()
-        except DriverError:
-            self.shutdown()
-            raise
-        self.get_logger().info(
-            f'{len(self.names)} drives OPERATIONAL (nodes {list(self.master_config.node_ids)}) on '
-            f'{self.master_config.interface}:{self.master_config.channel}, SYNC '
-            f'{self.master_config.sync_rate_hz:g} Hz; call ~/home then ~/enable')
+        switch_us = int(self.cfg['can']['gil_switch_interval_us'])
+        if switch_us > 0 and self._previous_switch_interval is None:
+            # process-wide: a thread busy in Python (executor, simulator) then holds the GIL
+            # at most this long when the SYNC thread wakes (Python's default: 5 ms);
+            # restored when the bus closes (in-process bring-ups, tests)
+            self._previous_switch_interval = sys.getswitchinterval()
+            sys.setswitchinterval(switch_us * 1e-6)
+        mc = self.master_config
+        if self.cfg['can']['sim']:
+            if self.sim is None:
+                from ..sim import SimulatedBrace
+                # the EDS as the master resolved it (the node's parameters carry no file path)
+                self.sim = SimulatedBrace(self.cfg, channel=mc.channel, interface=mc.interface,
+                                          eds=mc.eds, mechanism=self.mechanism, start=False)
+            self.sim.start()
+            self.get_logger().info(f'simulated brace on {mc.interface}:{mc.channel}')
+        master = BraceMaster(mc)
+        master.soft_limit_context = self._soft_limit_context
+        self.master = master
+        master.boot()
 
-    def _start_truth(self) -> None:
-        """Publishers and timer of the simulator's ground truth (module docstring)."""
+    def _close(self) -> None:
+        """Stop taking commands, disable the drives, close the bus, power the simulated brace
+        off. Never raises (a failure is logged): every transition that closes ends closed."""
+        self._active = False
+        for timer in (self._js_timer, self._event_timer, self._truth_timer):
+            if timer is not None:
+                timer.cancel()
+        m = self.master
+        if m is not None:
+            try:
+                m.shutdown()              # drives disabled whatever the latch says, bus closed
+            except Exception as exc:  # noqa: BLE001 - closing anyway
+                self.get_logger().error(f'closing the CAN master: {exc!r}')
+            try:
+                self.publish_events()     # the motions the shutdown ended
+            except Exception:  # noqa: BLE001
+                pass
+            self.master = None
+        if self.sim is not None:
+            try:
+                self.sim.shutdown()
+            except Exception as exc:  # noqa: BLE001
+                self.get_logger().error(f'stopping the simulated brace: {exc!r}')
+        if self._previous_switch_interval is not None:
+            sys.setswitchinterval(self._previous_switch_interval)
+            self._previous_switch_interval = None
+        self._last_faults = ()
+
+    def _truth_publishers(self) -> None:
+        """Publishers and timer of the simulator's ground truth (module docstring): lifecycle
+        publishers, the timer runs while active."""
         if self.mechanism is None:
             return
         from geometry_msgs.msg import PoseStamped, WrenchStamped
@@ -235,21 +475,21 @@ class CanDriverNode(Node):
         from .msgs import pose_kind, pose_msg, wrench_msg
         self.create_subscription(PoseStamped, topics.SIM_BODY_REST, self._on_body_rest,
                                  topics.STATE_QOS, callback_group=self._stream_group)
-        self._truth_pubs = (self.create_publisher(JointState, topics.SIM_JOINT_STATES, topics.STATE_QOS),
-                            self.create_publisher(PoseStamped, topics.SIM_POSE, topics.STATE_QOS),
-                            self.create_publisher(WrenchStamped, topics.SIM_WRENCH, topics.STATE_QOS),
-                            self.create_publisher(PoseStamped, topics.SIM_BODY_POSE, topics.STATE_QOS))
+        self._truth_pubs = tuple(self.create_lifecycle_publisher(t, name, topics.STATE_QOS) for t, name in (
+            (JointState, topics.SIM_JOINT_STATES), (PoseStamped, topics.SIM_POSE),
+            (WrenchStamped, topics.SIM_WRENCH), (PoseStamped, topics.SIM_BODY_POSE)))
         kind = pose_kind(self.mechanism)
         base, platform = self.cfg['base_frame'], self.cfg['platform_frame']
         last_wrench: list[Any] = [None, None]       # (pose, efforts) bytes, the platform wrench
 
         def publish() -> None:
-            if not self.context.ok():         # shutting down: the publishers are going
-                return
+            sim = self.sim
+            if not self.context.ok() or sim is None or not self._active:
+                return                    # shutting down / closed: the publishers are going
             # the truth of the SYNC the last /brace/joint_states described (same stamp): a
             # comparison with the estimate pairs the same instant, not two SYNCs ms apart
             wall = self._last_js_wall
-            truth = self.sim.truth_at(wall) if wall and time.time() - wall < 0.1 else self.sim.truth()
+            truth = sim.truth_at(wall) if wall and time.time() - wall < 0.1 else sim.truth()
             stamp = ns_to_stamp(round(truth.stamp * 1e9) if truth.stamp else
                                 self.get_clock().now().nanoseconds)
             js_pub, pose_pub, wrench_pub, body_pub = self._truth_pubs
@@ -271,29 +511,40 @@ class CanDriverNode(Node):
             wrench_pub.publish(wrench_msg(last_wrench[1], frame_id=platform, stamp=stamp, kind=kind))
         self._truth_timer = self.create_timer(1.0 / float(self.cfg['sim']['truth_rate_hz']),
                                               timer_callback(publish), callback_group=self._stream_group)
+        self._truth_timer.cancel()                  # runs while active
 
     def _on_body_rest(self, msg: Any) -> None:
         """Simulation: where the patient's body rests (a test or a script moves the patient)."""
         from .msgs import pose_from_msg
+        sim = self.sim
+        if sim is None:
+            self.get_logger().warning('body rest pose ignored: the simulated brace starts on configure',
+                                      throttle_duration_sec=1.0)
+            return
         try:
             pose = pose_from_msg(msg, frame_id=self.cfg['base_frame'], mechanism=self.mechanism)
-            self.sim.set_rest_pose(pose)
+            sim.set_rest_pose(pose)
         except ValueError as exc:
             self.get_logger().warning(f'body rest pose ignored: {exc}', throttle_duration_sec=1.0)
 
     def shutdown(self) -> None:
-        """Disable the drives, stop SYNC, close the bus, stop the simulator. Idempotent."""
-        if self._closed:
+        """The lifecycle ``shutdown`` transition from whatever state the node is in: drives
+        disabled, bus closed, simulator stopped; the node is finalized. Idempotent; if the
+        state machine cannot take the transition now (another one is under way) the bus is
+        closed directly."""
+        if self._lifecycle == 'finalized':
             return
-        self._closed = True
+        if not self._constructed:             # nothing was opened
+            self._lifecycle = 'finalized'
+            return
         try:
-            if self.master is not None:
-                self.master.shutdown()
-        finally:
-            if self.sim is not None:
-                self.sim.shutdown()
-            if getattr(self, '_previous_switch_interval', None):
-                sys.setswitchinterval(self._previous_switch_interval)
+            self.trigger_shutdown()
+        except Exception as exc:  # noqa: BLE001 - rcl refuses a shutdown in a transition state
+            self.get_logger().warning(f'lifecycle shutdown not possible now ({exc}); closing the bus')
+        if self._lifecycle != 'finalized':
+            with self._transition_lock:
+                self._close()
+                self._lifecycle = 'finalized'
 
     def destroy_node(self) -> None:
         self.shutdown()
@@ -310,7 +561,20 @@ class CanDriverNode(Node):
             self.get_logger().error(f'actuator setpoint rejected ({self.rejected} so far), '
                                     f'nothing sent, drives hold: {why}')
 
+    def _refusal(self, what: str) -> str:
+        """Why ``what`` is not taken in the current lifecycle state (with what to do)."""
+        state = self._lifecycle
+        todo = {'unconfigured': f'no bus is open; ros2 lifecycle set {self.get_fully_qualified_name()} '
+                                'configure, then activate',
+                'inactive': f'ros2 lifecycle set {self.get_fully_qualified_name()} activate first',
+                'finalized': 'the node was shut down; restart it'}.get(state, 'wait for the transition to end')
+        return f'{what} refused: the driver is {state} (lifecycle); {todo}'
+
     def _on_setpoint(self, msg: JointState) -> None:
+        m = self.master
+        if not self._active or m is None:
+            self._reject(self._refusal('setpoint'))
+            return
         try:
             arrays = joint_state_arrays(msg, self.names, ('position', 'velocity'),
                                         optional=('velocity',))
@@ -322,8 +586,8 @@ class CanDriverNode(Node):
         # arrival in the master (a stream that stopped), not by the stamp's age.
         stamp = stamp_to_ns(msg.header.stamp)
         try:
-            self.master.set_targets(arrays['position'], stamp=stamp * 1e-9 if stamp else None,
-                                    velocities=arrays['velocity'])
+            m.set_targets(arrays['position'], stamp=stamp * 1e-9 if stamp else None,
+                          velocities=arrays['velocity'])
         except ValueError as exc:
             self._reject(str(exc))
             return
@@ -398,11 +662,19 @@ class CanDriverNode(Node):
         """A whole planned motion: checked, then executed from its stamp (module docstring)."""
         tag = stamp_to_ns(msg.header.stamp)
         now_perf = time.perf_counter()
+        m = self.master
+        if not self._active or m is None:
+            if msg.points:                # a cancel (no points) has nothing to stop here
+                why = self._refusal('trajectory')
+                self._exec_pub.publish(status_msg(
+                    f'{self.get_name()}/trajectory/{tag}', 'rejected', level=DiagnosticStatus.ERROR,
+                    stamp=tag, kind='rejected', reason=why))
+                self.get_logger().error(f'trajectory {tag} rejected: {why}')
+            return
         try:
             _, times, q, qd, qdd = joint_knots_from_msg(msg, self.names)
             if times.size == 0:
-                self.master.stop_motion('cancel requested (empty trajectory)',
-                                        tag=tag if tag else None)
+                m.stop_motion('cancel requested (empty trajectory)', tag=tag if tag else None)
                 return
             trajectory = ActuatorTrajectory(times, q, qd, qdd)
         except (MalformedMessage, TrajectoryInvalid) as exc:
@@ -412,16 +684,22 @@ class CanDriverNode(Node):
             self.get_logger().error(f'trajectory {tag} rejected: {exc}')
             return
         start = now_perf if tag == 0 else (tag - self._ros_minus_perf_ns) * 1e-9
-        reason = self.master.execute(trajectory, start=start, tag=tag)
+        reason = m.execute(trajectory, start=start, tag=tag)
         if reason is not None:
             self.get_logger().warning(f'trajectory {tag} rejected: {reason}')
         self.publish_events()
 
     def publish_events(self) -> None:
-        """Execution events since the last call, and the driver's state when it changed."""
+        """Execution events since the last call, new faults (logged, in ``/diagnostics`` at
+        once), and the driver's state when it changed."""
+        m = self.master
         if not self.context.ok():
             return
-        for e in self.master.execution_events():
+        if m is None:
+            self.publish_state()
+            return
+        self._note_faults(m)
+        for e in m.execution_events():
             level = (DiagnosticStatus.ERROR if e.kind == 'rejected' or 'protective stop' in e.reason
                      else DiagnosticStatus.WARN if e.kind == 'stopped' else DiagnosticStatus.OK)
             self._exec_pub.publish(status_msg(
@@ -430,12 +708,37 @@ class CanDriverNode(Node):
                 time=self._ros_minus_perf_ns + round(e.time * 1e9), lag=e.lag))
         self.publish_state()
 
+    def _note_faults(self, m: BraceMaster) -> None:
+        """A new fault: logged, and in ``/diagnostics`` at once."""
+        faults = m.supervisor.faults
+        if faults != self._last_faults:
+            for f in faults:
+                if f not in self._last_faults:
+                    self.get_logger().error(f'protective stop (latched until ~/recover): {f.describe()}')
+            self._last_faults = faults
+            self.publish_diagnostics()
+
     def publish_state(self, *, force: bool = False) -> None:
-        """``/brace/driver_state`` (latched) when the state, the faults or homing changed."""
+        """``/brace/driver_state`` (latched) when the lifecycle state, the master's state, the
+        faults or homing changed. Not active: the message starts with the lifecycle state
+        (``inactive: disabled``, ``unconfigured``), ``enabled`` is false."""
+        if not self.context.ok():
+            return
         m = self.master
+        lifecycle = self._lifecycle
+        if m is None:
+            key: tuple = (lifecycle,)
+            if key == self._last_state_key and not force:
+                return
+            self._last_state_key = key
+            self._state_pub.publish(status_msg(
+                f'{self.get_name()}/state', lifecycle, level=DiagnosticStatus.WARN, state=lifecycle,
+                lifecycle=lifecycle, enabled='false', homed='false', faults='none', execution='hold',
+                command=[], stamp=self.get_clock().now().nanoseconds))
+            return
         faults = m.supervisor.faults
         execution = m.executor.state.value
-        key = (m.state, tuple(f.describe() for f in faults), m.homed, execution)
+        key = (lifecycle, m.state, tuple(f.describe() for f in faults), m.homed, execution)
         if key == self._last_state_key and not force:
             return
         self._last_state_key = key
@@ -444,9 +747,12 @@ class CanDriverNode(Node):
         level = (DiagnosticStatus.ERROR if faults else
                  DiagnosticStatus.OK if state is MasterState.ENABLED else DiagnosticStatus.WARN)
         message = f'{text}: {m.supervisor.summary()}' if faults else text
+        if lifecycle != 'active':
+            message = f'{lifecycle}: {message}'
         self._state_pub.publish(status_msg(
-            f'{self.get_name()}/state', message, level=level, state=state.value,
-            enabled=str(state is MasterState.ENABLED).lower(), homed=str(m.homed).lower(),
+            f'{self.get_name()}/state', message, level=level, state=state.value, lifecycle=lifecycle,
+            enabled=str(state is MasterState.ENABLED and lifecycle == 'active').lower(),
+            homed=str(m.homed).lower(),
             faults=m.supervisor.summary() if faults else 'none', execution=execution,
             command=list(m.executor.q) if m.executor.anchored else [],
             stamp=self.get_clock().now().nanoseconds))
@@ -454,15 +760,13 @@ class CanDriverNode(Node):
     # ------------------------------------------------------------------ joint states, wrench
 
     def _publish_joint_states(self) -> None:
-        faults = self.master.supervisor.faults
-        if faults != self._last_faults:
-            for f in faults:
-                if f not in self._last_faults:
-                    self.get_logger().error(f'protective stop (latched until ~/recover): {f.describe()}')
-            self._last_faults = faults
-            self.publish_diagnostics()            # a new fault is in /diagnostics at once
-        fb = self.master.feedback()
-        if not fb.valid or not (self.master.homed or not self.master_config.homing_method):
+        """``/brace/joint_states`` (active only) and the platform wrench check."""
+        m = self.master
+        if m is None or not self._active:
+            return
+        self._note_faults(m)
+        fb = m.feedback()
+        if not fb.valid or not (m.homed or not self.master_config.homing_method):
             return       # an incremental encoder reads 0 until homed: no measurement yet
         # stamped with the SYNC the samples answer (its wall-clock send time: ROS time), not
         # when this timer ran
@@ -471,7 +775,7 @@ class CanDriverNode(Node):
         self._last_js_wall = fb.wall
         self._js_pub.publish(joint_state(self.names, position=fb.position, velocity=fb.velocity,
                                          effort=fb.force, stamp=stamp))
-        if self.master.state is MasterState.ENABLED:
+        if m.state is MasterState.ENABLED:
             self._check_wrench(fb.position, fb.force)
 
     def _wrench(self, q: np.ndarray, forces: np.ndarray) -> np.ndarray | None:
@@ -513,7 +817,10 @@ class CanDriverNode(Node):
         return np.asarray(self.mechanism.wrench(pose, forces), float)
 
     def _wrench_exceeds(self) -> bool:
-        fb = self.master.feedback()
+        m = self.master
+        if m is None:
+            return False
+        fb = m.feedback()
         w = self._wrench(fb.position, fb.force) if fb.valid else None
         return w is not None and bool(np.any(np.abs(w[:self._wrench_limit.size]) >
                                              self._wrench_limit[:w.size]))
@@ -534,23 +841,32 @@ class CanDriverNode(Node):
 
     # ------------------------------------------------------------------ services
 
-    def _trigger(self, name: str, fn: Callable[[], str]) -> Callable[[Any, Any], Any]:
+    def _trigger(self, name: str, fn: Callable[[], str],
+                 allowed: frozenset[str]) -> Callable[[Any, Any], Any]:
         """A Trigger service whose work (a 402 transition, a brake along the path, a relief:
         up to seconds) runs in a thread of its own while the executor goes on publishing:
-        the callback is a coroutine that awaits the work's future."""
+        the callback is a coroutine that awaits the work's future. Taken only in the
+        lifecycle states ``allowed``; in any other the answer is ``success=False`` naming the
+        state. The work holds the transition lock: no transition runs meanwhile."""
         async def handle(request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
             done: Future = Future(executor=self.executor)
 
             def work() -> None:
                 try:
-                    done.set_result((True, fn()))
+                    with self._transition_lock:
+                        if self._lifecycle not in allowed or self.master is None:
+                            raise _Refused(self._refusal(name))
+                        done.set_result((True, fn()))
                 except DriverError as exc:
                     done.set_result((False, str(exc)))
                 except Exception as exc:  # noqa: BLE001 - a service must answer
                     done.set_result((False, f'{name} failed: {exc!r}'))
             async with self._service_lock:    # one service at a time
-                threading.Thread(target=work, name=f'can_driver_{name}', daemon=True).start()
-                response.success, response.message = await done
+                if self._lifecycle not in allowed:
+                    response.success, response.message = False, self._refusal(name)
+                else:
+                    threading.Thread(target=work, name=f'can_driver_{name}', daemon=True).start()
+                    response.success, response.message = await done
             self.publish_events()                # the new state, at once
             # rclpy wants one severity per call site: two calls
             if response.success:
@@ -595,9 +911,10 @@ class CanDriverNode(Node):
 
     def _soft_limit_context(self, index: int, force: float) -> str:
         """What a soft-limit stop adds to its reason: the wrench capacity at the pose (SAFETY.md 14)."""
-        if self.mechanism is None or not hasattr(self.mechanism, 'wrench_capacity'):
+        m = self.master
+        if m is None or self.mechanism is None or not hasattr(self.mechanism, 'wrench_capacity'):
             return ''
-        fb = self.master.feedback()
+        fb = m.feedback()
         try:
             pose = np.asarray(self.mechanism.forward_nearest(fb.position, self._pose_hint), float)
             cap, limiting = self.mechanism.wrench_capacity(
@@ -615,8 +932,8 @@ class CanDriverNode(Node):
     # ------------------------------------------------------------------ diagnostics
 
     def diagnostics(self) -> DiagnosticArray:
-        """One status per drive, one for the bus, one for the cycle, one for safety."""
-        st = self.master.status()
+        """One status per drive, one for the bus, one for the cycle, one for safety; with no
+        bus open (unconfigured, finalized) one status saying so."""
         prefix = f'brace_control/{self.get_name()}'
         hw = f'{self.master_config.interface}:{self.master_config.channel}'
         out: list[DiagnosticStatus] = []
@@ -625,6 +942,16 @@ class CanDriverNode(Node):
             out.append(DiagnosticStatus(
                 level=_LEVEL[level], name=f'{prefix}/{name}', message=message, hardware_id=hw,
                 values=[KeyValue(key=k, value=str(v)) for k, v in values.items()]))
+
+        msg = DiagnosticArray()
+        m = self.master
+        if m is None:
+            status('safety', 'warn', f'{self._lifecycle}: CAN bus closed, drives not driven',
+                   lifecycle=self._lifecycle)
+            msg.header.stamp = self.get_clock().now().to_msg()
+            msg.status = out
+            return msg
+        st = m.status()
 
         faults_by_drive: dict[str | None, list[str]] = {}
         for f in st.faults:
@@ -659,20 +986,22 @@ class CanDriverNode(Node):
             level, message = 'warn', st.warnings[0]
         else:
             level, message = 'ok', st.state.value
-        status('safety', level, message, state=st.state.value, homed=st.homed,
+        if self._lifecycle != 'active':
+            message = f'{self._lifecycle}: {message}'
+        status('safety', level, message, state=st.state.value, homed=st.homed, lifecycle=self._lifecycle,
                faults=' | '.join(f.describe() for f in st.faults) or 'none',
                warnings=' | '.join(st.warnings) or 'none',
                stale_setpoint_holds=st.stale_setpoint_holds,
                accepted_setpoints=st.accepted_setpoints,
                setpoints_accepted=self.accepted, setpoints_rejected=self.rejected,
                last_rejection=self.last_rejection or 'none')
-        msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.status = out
         return msg
 
     def publish_diagnostics(self) -> None:
-        self._diag_pub.publish(self.diagnostics())
+        if self.context.ok():
+            self._diag_pub.publish(self.diagnostics())
 
 
 class _AsyncLock:
@@ -705,14 +1034,25 @@ class _Refused(DriverError):
     """A service request the master declined (the message says why)."""
 
 
+#: the executable's option (before ``--ros-args``): start unconfigured, for ``ros2 lifecycle set``
+MANUAL_LIFECYCLE = '--manual-lifecycle'
+
+
 def main(args: Sequence[str] | None = None) -> int:
-    """``ros2 run brace_control can_driver_node``; exit code 0, 1 when the bus or a drive
-    did not come up, 2 on a configuration error (:func:`~.runner.run_node`)."""
+    """``ros2 run brace_control can_driver_node [--manual-lifecycle]``: configured and
+    activated at start-up unless ``--manual-lifecycle`` (then it waits unconfigured for
+    ``ros2 lifecycle set``). Exit code 0, 1 when the bus or a drive did not come up at
+    start-up, 2 on a configuration error (:func:`~.runner.run_node`)."""
     from .runner import run_node
-    return run_node(lambda: CanDriverNode(boot=False), executable='can_driver_node',
+    argv = list(sys.argv if args is None else args)
+    own = argv[1:argv.index('--ros-args')] if '--ros-args' in argv else argv[1:]
+    manual = MANUAL_LIFECYCLE in own
+    return run_node(CanDriverNode, executable='can_driver_node',
                     summary='CiA 402 drives of the brace on CAN (or the simulated brace), '
-                            'trajectories and setpoints in, joint states out',
-                    args=args, start=lambda node: node.start(), startup_errors=(DriverError,))
+                            'trajectories and setpoints in, joint states out; a lifecycle node, '
+                            f'configured and activated at start-up unless {MANUAL_LIFECYCLE}',
+                    args=argv, start=None if manual else (lambda node: node.autostart()),
+                    startup_errors=(DriverError,))
 
 
 if __name__ == '__main__':

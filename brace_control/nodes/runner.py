@@ -12,6 +12,7 @@ the drives), and only then is the context shut down.
 """
 from __future__ import annotations
 
+import gc
 import os
 import signal
 import sys
@@ -26,7 +27,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from ..config import ConfigError
 
-__all__ = ['run_node', 'usage', 'make_executor', 'EXIT_STARTUP', 'EXIT_CONFIG']
+__all__ = ['run_node', 'usage', 'make_executor', 'freeze_start_up_heap', 'EXIT_STARTUP', 'EXIT_CONFIG']
 
 EXIT_STARTUP = 1
 EXIT_CONFIG = 2
@@ -48,6 +49,19 @@ def make_executor(context: object = None) -> Executor:
         else:
             return EventsExecutor(context=context)
     return SingleThreadedExecutor(context=context)
+
+
+def freeze_start_up_heap() -> None:
+    """Take every object built so far out of the cyclic garbage collector's passes
+    (:func:`gc.freeze`).
+
+    A node's start-up builds ~10^5 long-lived objects (modules, message classes, the object
+    dictionary, the mechanism); Python's full collection walks all of them and holds the GIL
+    meanwhile: 0.1-0.5 s on a loaded machine, longer than the drives' heartbeat consumer
+    time (bench/RESULTS.md, "Host stalls"). Frozen, they are never walked again; objects
+    made later are collected as usual. Call it once the node is up, before it spins.
+    """
+    gc.freeze()
 
 
 def usage(executable: str, summary: str) -> str:
@@ -79,15 +93,17 @@ def run_node(factory: Callable[[], Node], *, executable: str, summary: str,
     if '-h' in user_args or '--help' in user_args:
         print(usage(executable, summary))
         return 0
+    # our own signal handling (module docstring): the context outlives the spin loop. Installed
+    # first, so a signal during start-up (rclpy.init, building the node) ends the process
+    # cleanly too, not with a KeyboardInterrupt traceback.
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
     try:
-        # our own signal handling (module docstring): the context outlives the spin loop
         rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     except Exception as exc:  # noqa: BLE001 - rcl reports bad --ros-args as RCLError
         print(f'{executable}: cannot start: {exc}', file=sys.stderr)
         return EXIT_CONFIG
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
     node = None
     try:
         node = factory()
@@ -98,8 +114,9 @@ def run_node(factory: Callable[[], Node], *, executable: str, summary: str,
     spinner = executor()
     code = 0
     try:
-        if start is not None:
+        if start is not None and not stop.is_set():     # a signal while building: no start
             start(node)
+        freeze_start_up_heap()
         spinner.add_node(node)
         # wake at least every 0.1 s to see a signal (Python runs handlers between bytecodes)
         while not stop.is_set() and rclpy.ok():

@@ -88,7 +88,7 @@ from ..can.units import actuator_kind, scaling_from_config
 from ..config import ConfigError, DeviceConfig, load_device_config
 from ..mechanisms import mechanism_from_config
 from ..mechanisms.planar_floats import PlanarRprFloats
-from .drive import DEFAULT_BANDWIDTH_HZ, DriveLimits, SimulatedDrive
+from .drive import DriveLimits, SimulatedDrive
 from .faults import FaultInjector
 from .host import SimBus
 
@@ -174,23 +174,27 @@ class SimulatedBrace:
     :param seed: load-cell noise seed; default ``sim.seed``.
     :param dt_source: see :class:`~brace_control.sim.host.SimBus` (``'1006h'`` default).
     :param start: open the bus and boot the drives now (else call :meth:`start`).
+    :param mechanism: the model of ``config``'s mechanism if the caller has built it (the CAN
+        driver shares its own: the mechanism classes keep no per-call state); default: built
+        from ``config``.
     """
 
     def __init__(self, config: DeviceConfig | Mapping[str, Any] | str | Path, *,
                  channel: str | None = None, interface: str | None = None,
                  eds: str | Path | None = None, seed: int | None = None,
-                 dt_source: str = '1006h', start: bool = True) -> None:
+                 dt_source: str = '1006h', start: bool = True, mechanism: Any = None) -> None:
+        # a DeviceConfig is checked against brace_control.schema and has its defaults filled
         cfg = config if isinstance(config, DeviceConfig) else (
             DeviceConfig(config) if isinstance(config, Mapping) else load_device_config(config))
         self.config = cfg
-        self.mechanism = mechanism_from_config(cfg)
+        self.mechanism = mechanism if mechanism is not None else mechanism_from_config(cfg)
         can_cfg, act, sim = cfg.section('can'), cfg.section('actuator'), cfg.section('sim')
         self.node_ids: tuple[int, ...] = tuple(int(i) for i in cfg.get_path('can.node_ids'))
         n = self.mechanism.n_actuators
         if len(self.node_ids) != n:
             raise ConfigError(f'can.node_ids has {len(self.node_ids)} ids for {n} actuators')
         eds_path = Path(eds) if eds is not None else \
-            cfg.relative_file(str(can_cfg.get('eds', 'lumbar_drive.eds')))
+            cfg.relative_file(str(can_cfg['eds']))
         #: rotary drives (``actuator.kind: rotary``): positions in rad, the effort is the joint
         #: torque reported as 6077h torque actual; linear: m and the load cell 2401h
         self.rotary = actuator_kind(cfg) == 'rotary'
@@ -204,18 +208,19 @@ class SimulatedBrace:
         lo, hi = self.mechanism.actuator_limits
         dof = int(self.mechanism.dof)
         self.dof = dof
-        self.stiffness = _matrix(sim.get('stiffness'), dof, 'sim.stiffness')
-        self.damping = _matrix(sim.get('damping'), dof, 'sim.damping')
+        # absent body stiffness / damping: none (a free body); absent rest pose: home
+        self.stiffness = _matrix(sim.get('stiffness', [0.0] * dof * dof), dof, 'sim.stiffness')
+        self.damping = _matrix(sim.get('damping', [0.0] * dof * dof), dof, 'sim.damping')
         self.rest_pose = np.asarray(sim.get('rest_pose', self.mechanism.home_pose), dtype=float)
         self._init_patient(sim)
         self._body = self.body_at(0.0)
-        self.noise_n = float(sim.get('load_cell_noise', 0.0))
-        self.offset_n = float(sim.get('load_cell_offset', 0.0))
-        self._rng = np.random.default_rng(int(sim.get('seed', 0) if seed is None else seed))
+        self.noise_n = float(sim['load_cell_noise'])
+        self.offset_n = float(sim['load_cell_offset'])
+        self._rng = np.random.default_rng(int(sim['seed'] if seed is None else seed))
         self._noise_block: list[list[float]] = []
         q0 = self.mechanism.inverse(self.mechanism.home_pose)
         #: series stiffness of each leg (N/m), see :meth:`_equilibrium`
-        self.leg_stiffness = float(sim.get('leg_stiffness', act.get('stiffness', 1.0e6)))
+        self.leg_stiffness = float(sim['leg_stiffness'])     # schema: absent -> actuator.stiffness
         #: |J^T f + W_body| below this (N, N·m) ends the equilibrium iteration
         self.equilibrium_tol = 1e-5
         self.equilibrium_failures = 0
@@ -246,31 +251,20 @@ class SimulatedBrace:
         #: names of the cables that are slack after the last SYNC (compliant cables)
         self.slack: tuple[str, ...] = ()
         self.drives: list[SimulatedDrive] = []
-        if 'drive_acceleration_factor' in sim:
-            raise ConfigError(
-                'sim.drive_acceleration_factor was removed: the simulated drives are CSP servo '
-                'drives (interpolated 607Ah, 60B1h velocity feed-forward, a position loop of '
-                'sim.drive_bandwidth_hz) and accelerate at actuator.max_acceleration, the '
-                "actuator's real limit; delete the key from the device file (docs/can.md)")
         #: position-loop bandwidth of the simulated drives (Hz), ``sim.drive_bandwidth_hz``
-        bandwidth = sim.get('drive_bandwidth_hz', DEFAULT_BANDWIDTH_HZ)
-        if isinstance(bandwidth, bool) or not isinstance(bandwidth, (int, float)) \
-                or not math.isfinite(bandwidth) or bandwidth <= 0.0:
-            raise ConfigError(f'sim.drive_bandwidth_hz = {bandwidth!r}: expected a positive '
-                              f'number of Hz (e.g. {DEFAULT_BANDWIDTH_HZ})')
-        self.drive_bandwidth_hz = float(bandwidth)
+        self.drive_bandwidth_hz = float(sim['drive_bandwidth_hz'])   # range: the schema
         for i, node_id in enumerate(self.node_ids):
             limits = DriveLimits(
                 counts_per_m=self.counts_per_m, max_velocity=float(act['max_velocity']),
                 max_acceleration=float(act['max_acceleration']),
                 stroke_min=float(lo[i]), stroke_max=float(hi[i]),
                 # 6077h torque actual is in per mille of this (rotary: the rated torque)
-                max_force=self.rated_force if self.rotary else float(act.get('max_force', 250.0)))
+                max_force=self.rated_force if self.rotary else float(act['max_force']))
             self.drives.append(SimulatedDrive(node_id, eds_path, limits=limits,
                                               initial_length_m=float(q0[i]),
                                               bandwidth_hz=self.drive_bandwidth_hz))
-        self.host = SimBus(channel or str(can_cfg.get('channel', 'brace0')),
-                           interface=interface or str(can_cfg.get('interface', 'virtual')),
+        self.host = SimBus(channel or str(can_cfg['channel']),
+                           interface=interface or str(can_cfg['interface']),
                            sync_handler=self._on_sync, dt_source=dt_source)
         for d in self.drives:
             self.host.add(d)

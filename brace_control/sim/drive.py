@@ -891,6 +891,13 @@ class SimulatedDrive:
                 self._set_state(State402.FAULT)
         self._emcy(code, data)
 
+    def host_stalled(self, seconds: float) -> None:
+        """The host process did not run for ``seconds``: this drive's clock stood still, so
+        its heartbeat-consumer deadline (1016h) moves by as much (:mod:`brace_control.sim.host`)."""
+        with self.lock:
+            if self._hb_deadline != math.inf:
+                self._hb_deadline += seconds
+
     def _on_master_heartbeat_lost(self) -> None:
         """CiA 301 heartbeat event + CiA 402 6007h abort connection option code."""
         self.master_heartbeat_lost = True

@@ -7,6 +7,16 @@ with a :class:`can.Notifier` and dispatches: SYNC to the SYNC handler (a
 every drive's :meth:`~brace_control.sim.drive.SimulatedDrive.on_frame`. A single timer
 thread runs the drives' heartbeats, heartbeat-consumer timeouts and TPDO event timers.
 
+Host stalls: the simulated drives run inside the host process. When that process does not
+run at all for a while (a full pass of Python's garbage collector over a large heap, the OS
+scheduler on a loaded machine), the timer thread wakes late; the drives' clock is taken to
+have stood still for that time (:meth:`SimulatedDrive.host_stalled`), as the physics does
+(its step is clamped). Real drives would not stand still: the master rides out its own stalls
+(``master.py``'s grace after a stall; the heartbeat consumer time 1016h is twice the master's
+period), and the nodes freeze their start-up heap out of the collector
+(:func:`brace_control.nodes.runner.freeze_start_up_heap`). A master that stops while this
+process runs (its thread stuck, the heartbeat silenced) still trips the drives on time.
+
 Bus-off of the simulated side (:attr:`SimBus.bus_off`): the drives neither send nor
 receive (see :mod:`brace_control.sim.faults` for the master's side).
 """
@@ -26,6 +36,9 @@ from .drive import SimulatedDrive
 __all__ = ['SimBus', 'SyncHandler']
 
 log = logging.getLogger(__name__)
+
+#: the timer thread woke this much later than it asked (s): the host process did not run
+HOST_STALL_S = 0.02
 
 SyncHandler = Callable[[float], None]
 """``handler(dt)``: called on every SYNC with the time step in seconds."""
@@ -199,8 +212,15 @@ class SimBus:
     # ------------------------------------------------------------------ timers
 
     def _timer_loop(self) -> None:
+        wake_at: float | None = None          # when this thread asked to run again
         while not self._stop.is_set():
             now = time.monotonic()
+            late = 0.0 if wake_at is None else now - wake_at
+            if late > HOST_STALL_S:
+                # the host process did not run (a garbage-collector pass, the OS scheduler):
+                # the simulated drives live in it, so their clock stood still too
+                for d in self.drives:
+                    d.host_stalled(late)
             nxt = now + 0.05
             # also in bus-off: the drives' consumer timeouts expire (their sends are dropped)
             for d in self.drives:
@@ -208,5 +228,7 @@ class SimBus:
                     nxt = min(nxt, d.tick(now))
                 except Exception:   # noqa: BLE001 - never kill the timer thread
                     log.exception('simulated drive %d timer failed', d.node_id)
-            self._wake.wait(max(0.0, nxt - time.monotonic()))
+            wake_at = max(nxt, time.monotonic())
+            if self._wake.wait(max(0.0, nxt - time.monotonic())):
+                wake_at = None                # woken by a frame: no deadline to be late for
             self._wake.clear()

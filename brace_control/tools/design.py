@@ -1044,7 +1044,7 @@ def main(argv: list[str] | None = None) -> int:
         mech = mechanism_from_config(cfg)
         if not isinstance(mech, Rpr3):
             raise ValueError(f'{args.device} is not a 3-RPR device (mechanism.type rpr3)')
-        task = _task_from(args, Task(force_limit=float(cfg.get_path('actuator.max_force', 250.0)),
+        task = _task_from(args, Task(force_limit=float(cfg.get_path('actuator.max_force')),
                                      condition_max=float(mech.singularity_condition_max),
                                      reference_pose=tuple(float(v) for v in mech.home_pose)))
         if not (args.grid > 0 and args.grid_deg > 0):

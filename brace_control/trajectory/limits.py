@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..config import as_device_config
 from ..mechanisms.base import SingularPose
 from .base import Trajectory
 
@@ -64,11 +65,11 @@ class Limits:
 
         :raises ValueError: a platform limit with the wrong length for ``dof`` or not > 0.
         """
-        traj, act = cfg.get('trajectory', {}), cfg.get('actuator', {})
-        mech = cfg.get('mechanism', {})
+        dc = as_device_config(cfg)     # checked against brace_control.schema, defaults filled
+        traj, act, mech = dc.section('trajectory'), dc.section('actuator'), dc.section('mechanism')
 
-        def arr(name: str, default: list[float]) -> np.ndarray:
-            a = np.asarray(traj.get(name, default), dtype=float).reshape(-1)
+        def arr(name: str) -> np.ndarray:
+            a = np.asarray(traj[name], dtype=float).reshape(-1)
             if dof is not None and a.size == 1:
                 a = np.full(dof, a[0])
             if dof is not None and a.size != dof:
@@ -77,17 +78,17 @@ class Limits:
             if not np.all(np.isfinite(a) & (a > 0.0)):
                 raise ValueError(f'trajectory.{name} must be finite and > 0, got {a.tolist()}')
             return a
-        return cls(max_velocity=arr('max_velocity', [0.03, 0.03, 0.3]),
-                   max_acceleration=arr('max_acceleration', [0.1, 0.1, 1.0]),
-                   max_jerk=arr('max_jerk', [1.0, 1.0, 10.0]),
-                   actuator_max_velocity=float(act.get('max_velocity', 0.065)),
-                   actuator_max_acceleration=(None if act.get('max_acceleration') is None
-                                              else float(act['max_acceleration'])),
+        return cls(max_velocity=arr('max_velocity'),
+                   max_acceleration=arr('max_acceleration'),
+                   max_jerk=arr('max_jerk'),
+                   actuator_max_velocity=float(act['max_velocity']),
+                   actuator_max_acceleration=float(act['max_acceleration']),
+                   # the model's own default when the file has no mechanism (or no type)
                    singularity_condition_max=float(mech.get('singularity_condition_max', 1e4)),
-                   samples=int(traj.get('path_check_samples', 200)),
-                   limit_margin=float(traj.get('limit_margin', 0.8)),
-                   force_limits=float(act.get('max_force', 250.0)),
-                   min_wrench_capacity=_capacity(traj.get('min_wrench_capacity')))
+                   samples=int(traj['path_check_samples']),
+                   limit_margin=float(traj['limit_margin']),
+                   force_limits=float(act['max_force']),
+                   min_wrench_capacity=_capacity(traj['min_wrench_capacity']))
 
 
 def _capacity(value) -> np.ndarray | None:

@@ -8,7 +8,10 @@ reports (SAFETY.md 12, 16):
 
 * **succeeded** only when the driver reported the motion finished, the drives were enabled
   all along, and the estimated platform pose (load aware) came within ``pose_tolerance``
-  of the goal within ``settle_time`` after that;
+  of the goal within ``settle_time`` after that and stayed within it for
+  :data:`SETTLE_CONFIRM_S` (a ring still creeping across the edge of the tolerance has not
+  arrived: the estimate samples it, and a ring judged on its first sample inside may be
+  outside again by the time the success is reported);
 * **aborted** when the driver rejected or stopped the motion (halt, disable, protective
   stop: the reason is the driver's), when the drives left the enabled state, when the
   ring did not follow (the estimate stayed off the goal: by how much, per coordinate), or
@@ -44,7 +47,12 @@ from .planner import Plan, Profile, plan_motion
 if TYPE_CHECKING:  # pragma: no cover
     from ..mechanisms.base import Mechanism
 
-__all__ = ['GoalState', 'GoalRequest', 'GoalEvent', 'StartState', 'TrajectoryRunner']
+__all__ = ['GoalState', 'GoalRequest', 'GoalEvent', 'StartState', 'TrajectoryRunner',
+           'SETTLE_CONFIRM_S']
+
+#: s the estimate must stay within the pose tolerance before a goal succeeds (five
+#: estimates at the 100 Hz joint-state rate)
+SETTLE_CONFIRM_S = 0.05
 
 
 class GoalState(str, enum.Enum):
@@ -117,6 +125,7 @@ class _Goal:
     started: bool = False
     finished_at: float | None = None      # when the driver reported the motion finished
     best_error: np.ndarray | None = None
+    inside_since: float | None = None     # stamp of the first estimate of the run inside the tolerance
 
 
 class TrajectoryRunner:
@@ -332,7 +341,12 @@ class TrajectoryRunner:
         err = np.abs(self._estimate - goal.target)
         if goal.best_error is None or np.max(err / self.pose_tolerance) < np.max(goal.best_error / self.pose_tolerance):
             goal.best_error = err
-        if np.all(err <= self.pose_tolerance):
+        if not np.all(err <= self.pose_tolerance):
+            goal.inside_since = None
+            return []
+        if goal.inside_since is None:
+            goal.inside_since = stamp
+        if stamp - goal.inside_since >= SETTLE_CONFIRM_S - 1e-9:
             self._goal = None
             return [GoalEvent(goal.goal_id, GoalState.SUCCEEDED, '', goal.target, goal.duration,
                               goal.profile, {'final_error': err.tolist()})]
@@ -345,7 +359,9 @@ class TrajectoryRunner:
         if goal is None:
             return []
         if goal.finished_at is not None:
-            if now - goal.finished_at <= self.settle_time:
+            # an estimate inside the tolerance when the time is up gets its confirmation
+            confirming = SETTLE_CONFIRM_S if goal.inside_since is not None else 0.0
+            if now - goal.finished_at <= self.settle_time + confirming:
                 return []
             self._goal = None
             if goal.best_error is None:
