@@ -241,6 +241,8 @@ SCHEMA: dict[str, Param] = {
                                        'wrench capacity alone)', (0.0, 1e5), 'N or N·m'),
     'interaction.stop_deceleration': _ro([0.1], 'deceleration to rest on ~/stop and at a limit, per pose '
                                          'axis', (1e-6, 1e4), 'm/s² or rad/s²'),
+    'interaction.goal_rate': _ro([0.0], 'a new wrench goal is tracked as a ramp at this rate per pose axis '
+                                 '(0: a step)', (0.0, 1e6), 'N/s or N·m/s'),
     'interaction.wrench_timeout': _ro(0.1, 'no /brace/wrench for this long -> the mode stops',
                                       (0.005, 5.0), 's'),
 }

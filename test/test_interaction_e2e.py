@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rclpy
+import yaml
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from rclpy.context import Context
@@ -30,12 +31,107 @@ from brace_control.nodes.msgs import pose_msg, status_values
 
 ROOT = Path(__file__).resolve().parent.parent
 LUMBAR = ROOT / 'config' / 'lumbar_brace.yaml'
+PARAMS = yaml.safe_load(LUMBAR.read_text())['/**']['ros__parameters']
 _channels = itertools.count()
 RELIABLE_10 = 10
-#: the sway's centre: y 380 mm, theta 8 deg. In phase, +-10 mm and +-5 deg keep every leg
-#: 5.3 mm inside the 340-440 mm stroke and the capacity above trajectory.min_wrench_capacity
-#: (Mz >= 1.5 N·m at 3 deg); the paper's brace has no room for the sway at its 5 deg home
-WORK = (0.0, 0.380, math.radians(8.0))
+#: m/s: the speed the admittance may command (trajectory.limit_margin x actuator.max_velocity)
+V_ALLOWED = PARAMS['trajectory']['limit_margin'] * PARAMS['actuator']['max_velocity']
+#: share of V_ALLOWED a sway may need: the ring lags the trunk and catches up a little faster
+SPEED_HEADROOM = 0.9
+STROKE = (PARAMS['mechanism']['stroke_min'], PARAMS['mechanism']['stroke_max'])
+#: the admittance keeps 2 % of the stroke clear (brace_control.interaction.admittance.STROKE_MARGIN)
+STROKE_CLEAR = 0.02 * (STROKE[1] - STROKE[0])
+MIN_CAPACITY = np.asarray(PARAMS['trajectory']['min_wrench_capacity'], dtype=float)
+STOP_DECEL = np.asarray(PARAMS['interaction']['stop_deceleration'], dtype=float)
+DAMPING = np.asarray(PARAMS['interaction']['damping'], dtype=float)
+K_BODY = np.diag(np.reshape(PARAMS['sim']['stiffness'], (3, 3)))
+
+
+# ------------------------------------------------------------------ feasibility (the oracle)
+# From the YAML's anchors alone (not the mechanism code): leg i is |B_i(pose) - A_i|, the
+# platform wrench of unit leg forces G(pose) (columns u_i, (R b_i) x u_i).
+
+def legs(pose: np.ndarray) -> np.ndarray:
+    """Leg lengths (m) at ``pose`` (x, y m; theta rad)."""
+    a = np.reshape(PARAMS['mechanism']['base_anchors'], (3, 2))
+    b = np.reshape(PARAMS['mechanism']['platform_anchors'], (3, 2))
+    x, y, th = pose
+    c, s = math.cos(th), math.sin(th)
+    return np.array([math.hypot(x + c * b[j, 0] - s * b[j, 1] - a[j, 0], y + s * b[j, 0] + c * b[j, 1] - a[j, 1])
+                     for j in range(3)])
+
+
+def capacity(pose: np.ndarray) -> np.ndarray:
+    """Wrench capacity (Fx, Fy N, Mz N·m) with |f| <= actuator.max_force: ``W = G f`` so
+    ``f = G^-1 W``; axis i alone holds ``f_max / max_j |(G^-1)_ji|``."""
+    a = np.reshape(PARAMS['mechanism']['base_anchors'], (3, 2))
+    b = np.reshape(PARAMS['mechanism']['platform_anchors'], (3, 2))
+    x, y, th = pose
+    c, s = math.cos(th), math.sin(th)
+    cols = []
+    for j in range(3):
+        rb = np.array([c * b[j, 0] - s * b[j, 1], s * b[j, 0] + c * b[j, 1]])
+        u = np.array([x, y]) + rb - a[j]
+        u = u / np.linalg.norm(u)
+        cols.append([u[0], u[1], rb[0] * u[1] - rb[1] * u[0]])
+    return PARAMS['actuator']['max_force'] / np.max(np.abs(np.linalg.inv(np.array(cols).T)), axis=0)
+
+
+def sway_feasibility(centre: np.ndarray, amplitude: np.ndarray) -> tuple[float, str]:
+    """``(f_max, why_not)`` for a trunk at ``centre + A sin(2 pi f t)``: the leg speeds scale
+    with ``f`` (``dL/dt = (dL/dpose) A 2 pi f cos``), so ``f_max`` = V_ALLOWED over the peak
+    leg speed per Hz (central differences of :func:`legs` over one period at 1 Hz).
+    ``why_not`` (empty if fine): a pose of the sway at ``f_max``, or its braking pose (the
+    admittance's check: ``x + v T / 2``, ``T = max |v_i| / stop_deceleration_i``), within the
+    stroke's cleared 2 % or below trajectory.min_wrench_capacity."""
+    t = np.linspace(0.0, 1.0, 4001)
+    w = 2.0 * math.pi
+    poses = centre[None, :] + amplitude[None, :] * np.sin(w * t)[:, None]
+    L = np.array([legs(p) for p in poses])
+    speed_per_hz = float(np.max(np.abs(np.gradient(L, t, axis=0))))
+    f_max = V_ALLOWED / speed_per_hz
+    rates = amplitude[None, :] * w * f_max * np.cos(w * t)[:, None]
+    for p, v in zip(poses, rates):
+        ahead = p + 0.5 * v * float(np.max(np.abs(v) / STOP_DECEL))
+        for q in (p, ahead):
+            lq = legs(q)
+            if np.any(lq < STROKE[0] + STROKE_CLEAR) or np.any(lq > STROKE[1] - STROKE_CLEAR):
+                return f_max, f'legs {np.round(lq * 1e3, 1).tolist()} mm at pose {np.round(q, 4).tolist()}'
+            cap = capacity(q)
+            if np.any(cap < MIN_CAPACITY):
+                return f_max, f'capacity {np.round(cap, 2).tolist()} at pose {np.round(q, 4).tolist()}'
+    return f_max, ''
+
+
+#: (tag, trunk centre, amplitude, highest frequency asked for): the issue's sway ±10 mm
+#: vertically and ±5 deg, 0.2-0.5 Hz; each run at the highest frequency (in 0.05 Hz steps,
+#: at most the one asked for) whose leg speed stays within SPEED_HEADROOM x V_ALLOWED.
+#: Centres: the paper's 100 mm stroke has no room for the sway at its 5 deg home (at 3 deg
+#: and below the moment capacity falls under 0.9 N·m); y = 390 mm, theta = 8 deg keeps a1
+#: 10 mm clear at 13 deg; the combined sway (in phase) needs y = 380 mm (a3 at 390 mm, 13 deg)
+SWAYS = (('y', (0.0, 0.390, math.radians(8.0)), (0.0, 0.010, 0.0), 0.5),
+         ('theta', (0.0, 0.390, math.radians(8.0)), (0.0, 0.0, math.radians(5.0)), 0.5),
+         ('y+theta', (0.0, 0.380, math.radians(8.0)), (0.0, 0.010, math.radians(5.0)), 0.5))
+
+
+def run_frequency(centre, amplitude, f_asked: float) -> float:
+    f_max, why_not = sway_feasibility(np.asarray(centre, float), np.asarray(amplitude, float))
+    assert not why_not, f'sway about {centre} of {amplitude} leaves the workspace: {why_not}'
+    return min(f_asked, math.floor(SPEED_HEADROOM * f_max / 0.05 + 1e-9) * 0.05)
+
+
+def test_the_sways_feasibility_oracle() -> None:
+    """The oracle's numbers (hand check of the paper's geometry, Table II's 65 mm/s at 80 %):
+    the combined sway at 0.5 Hz needs ~85 mm/s (f_max ~0.31 Hz), the rotation alone ~53 mm/s
+    (just over 52: f_max ~0.49 Hz), the vertical alone ~31 mm/s (0.5 Hz is fine); the
+    rotation about theta = 5 deg dips under the moment capacity's 0.9 N·m."""
+    f = {tag: sway_feasibility(np.asarray(c, float), np.asarray(a, float)) for tag, c, a, _ in SWAYS}
+    assert f['y+theta'][0] == pytest.approx(0.31, abs=0.01) and not f['y+theta'][1]
+    assert f['theta'][0] == pytest.approx(0.49, abs=0.01) and not f['theta'][1]
+    assert f['y'][0] > 0.8 and not f['y'][1]
+    assert 'capacity' in sway_feasibility(np.array([0.0, 0.390, math.radians(5.0)]),
+                                          np.array([0.0, 0.0, math.radians(5.0)]))[1]
+    assert [run_frequency(c, a, fa) for _, c, a, fa in SWAYS] == pytest.approx([0.5, 0.4, 0.25])
 
 
 class Truth:
@@ -154,26 +250,23 @@ def test_zero_torque_mode_follows_a_swaying_patient_and_holds_wrench_goals(stack
     truth.wait_status(lambda s: s.message == 'started', 2, 'started')
     report: dict[str, float] = {}
 
-    # the patient settles lower and leans to 8 deg over 2 s; the brace follows (x is held:
+    # the patient leans to the first sway's centre over 2 s; the brace follows (x is held:
     # no lateral capacity)
-    rest0 = np.asarray(sim.rest_pose, dtype=float)
-    work = np.array(WORK)
+    current = np.asarray(sim.rest_pose, dtype=float)
     t0 = time.monotonic()
-    move_body(b, rest_pub, rest0, work, 2.0)
-    time.sleep(1.5)
-    tt, pose = truth.since(truth.pose, time.monotonic() - 0.3)
-    assert abs(pose[-1][2] - work[2]) < math.radians(0.3), np.degrees(pose[-1])
-    assert abs(pose[-1][1] - work[1]) < 0.002, pose[-1]
-    _, w = truth.since(truth.wrench, t0)
-    report['lean_max_moment'] = float(np.max(np.abs(w[:, 2])))
-
-    # sway +-10 mm vertically and +-5 deg at 0.5 Hz, then 0.2 Hz. At 0.5 Hz one at a time: in
-    # phase (or any phase) the two need 62-85 mm/s of leg speed, beyond the paper's actuators
-    # (0.065 m/s, Table II; 0.052 m/s with trajectory.limit_margin); the rotation alone needs
-    # 53 mm/s (a1, a3: the ring is speed limited for a moment at the sine's zero crossings)
-    for f_hz, periods, amp, tag in ((0.5, 3, [0.0, 0.010, 0.0], '0.5 Hz y'),
-                                    (0.5, 3, [0.0, 0.0, math.radians(5.0)], '0.5 Hz theta'),
-                                    (0.2, 1.5, [0.0, 0.010, math.radians(5.0)], '0.2 Hz')):
+    bounds: dict[str, float] = {}
+    for tag, centre, amp, f_asked in SWAYS:
+        centre, amp = np.asarray(centre, float), np.asarray(amp, float)
+        if np.any(centre != current):
+            move_body(b, rest_pub, current, centre, 2.0)
+            current = centre
+            time.sleep(1.5)
+            _, pose = truth.since(truth.pose, time.monotonic() - 0.3)
+            assert abs(pose[-1][2] - centre[2]) < math.radians(0.3), np.degrees(pose[-1])
+            assert abs(pose[-1][1] - centre[1]) < 0.002, pose[-1]
+        f_hz = run_frequency(centre, amp, f_asked)
+        tag = f'{tag} {f_hz:.2f} Hz'
+        periods = 3 if f_hz >= 0.4 else 1.5
         sim.set_sway(amp, f_hz)
         t_start = time.monotonic()
         time.sleep(periods / f_hz)
@@ -188,7 +281,16 @@ def test_zero_torque_mode_follows_a_swaying_patient_and_holds_wrench_goals(stack
         report[f'{tag} max |Mz| N.m'] = float(np.max(np.abs(w[:, 2])))
         report[f'{tag} max |y_ring - y_body| mm'] = float(np.max(err[:, 1]) * 1e3)
         report[f'{tag} max |th_ring - th_body| deg'] = float(np.degrees(np.max(err[:, 2])))
+        # the ring lags the trunk by ~ D v / K: following at A w costs D A w of wrench, which
+        # the trunk's stiffness turns into D A w / K of lag (docs/interaction.md, "The price")
+        lag_deg = math.degrees(DAMPING[2] * amp[2] * 2.0 * math.pi * f_hz / K_BODY[2])
+        # issue target 0.3 deg; where the 45 deg phase-margin damping (D_theta = 1.43 N·m·s/rad
+        # for 4 x the body's stiffness) makes the lag alone larger than 0.8 x 0.3 deg, the
+        # bound is 1.3 x that lag (theta at 0.4 Hz: lag 0.45 deg, measured 0.4-0.5 deg)
+        bounds[tag] = 0.3 if lag_deg < 0.24 else 1.3 * lag_deg
+        report[f'{tag} predicted theta lag deg'] = lag_deg
         time.sleep(1.0)
+    report['lean_max_moment'] = float(np.max(np.abs(truth.since(truth.wrench, t0)[1][:, 2])))
     # the brace stayed in interaction mode throughout (no limit, no fault)
     assert not [s for s in truth.status if s.message in ('aborted', 'stopping')], \
         [(s.message, status_values(s).get('reason')) for s in truth.status]
@@ -245,15 +347,11 @@ def test_zero_torque_mode_follows_a_swaying_patient_and_holds_wrench_goals(stack
     assert report['max command speed mm/s'] <= v_max * 1e3, report
     assert report['max command acceleration m/s2'] <= a_max * 1.001, report
     # issue 14's targets (docs/interaction.md, "Measured")
-    for tag in ('0.5 Hz y', '0.5 Hz theta', '0.2 Hz'):
+    for tag, bound in bounds.items():
         assert report[f'{tag} max |Fy| N'] < 5.0, report
         assert report[f'{tag} max |Mz| N.m'] < 0.5, report
         assert report[f'{tag} max |y_ring - y_body| mm'] < 2.0, report
-        # target 0.3 deg, not reachable with 45 deg of phase margin at 4 x the body's
-        # stiffness: following at w A costs D_theta w A = 1.43 x 0.274 = 0.39 N·m, which the
-        # trunk's 40 N·m/rad turns into 0.56 deg (0.3 deg needs D_theta < 0.77, i.e. < 30 deg
-        # at 4 x K even with no delay jitter; docs/interaction.md, "The trade-off")
-        assert report[f'{tag} max |th_ring - th_body| deg'] < 0.8, report
+        assert report[f'{tag} max |th_ring - th_body| deg'] < bound, (tag, bound, report)
     for name in ('Fy 30 N', 'Mz 2 N.m'):
         assert report[f'{name} settling s (5 %)'] <= 1.0, report
         assert report[f'{name} overshoot %'] <= 10.0, report

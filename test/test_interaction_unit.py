@@ -226,6 +226,52 @@ def test_the_virtual_velocity_stays_within_the_actuator_speed() -> None:
     assert ctl.velocity_limited > 0
 
 
+def test_a_wrench_goal_is_tracked_as_a_ramp_at_the_goal_rate() -> None:
+    """interaction.goal_rate [_, 60 N/s, 4 N·m/s]: after k periods the tracked wrench is
+    min(goal, rate k dt) (a ramp, then the goal); with goal_rate 0 it is the step at once."""
+    ctl = controller(goal_rate=[0.0, 60.0, 4.0])
+    ctl.start(ctl.mechanism.home_pose)
+    ctl.set_goal([0.0, 30.0, -2.0])
+    dt = ctl.p.dt
+    for k in range(1, 400):
+        ctl.step(ctl.goal_now.copy())              # the body answers with what was tracked
+        expect = [0.0, min(30.0, 60.0 * k * dt), -min(2.0, 4.0 * k * dt)]
+        np.testing.assert_allclose(ctl.goal_now, expect, rtol=0, atol=1e-9)
+    step = controller(goal_rate=[0.0])
+    step.start(step.mechanism.home_pose)
+    step.set_goal([0.0, 30.0, -2.0])
+    step.step([0.0, 0.0, 0.0])
+    np.testing.assert_array_equal(step.goal_now, [0.0, 30.0, -2.0])
+
+
+def test_a_saturated_pose_moves_with_the_velocity_it_reports() -> None:
+    """While speed limited, each period's pose change is the trapezoid of the reported
+    velocities (the integral of a velocity that is linear over the period), so the actuator
+    command's second difference stays at the velocity change: no catch-up step when the
+    saturation ends (the command's 9 m/s^2 spike, test_interaction_e2e, before the fix)."""
+    ctl = controller()
+    ctl.start(ctl.mechanism.home_pose)
+    dt = ctl.p.dt
+    xs, vs, limited = [ctl.x.copy()], [ctl.v.copy()], []
+    for k in range(200):
+        goal = [0.0, -60.0, -3.0] if k < 100 else [0.0, -0.5, -0.02]   # saturate, then not
+        before = ctl.velocity_limited
+        x, v = ctl.step(goal)
+        xs.append(x)
+        vs.append(v)
+        limited.append(ctl.velocity_limited > before)
+    xs, vs = np.array(xs), np.array(vs)
+    assert any(limited[:100]) and not any(limited[150:])
+    for k in np.flatnonzero(limited):
+        assert np.allclose(xs[k + 1] - xs[k], 0.5 * (vs[k] + vs[k + 1]) * dt, rtol=0, atol=1e-12), k
+    # the pose's own acceleration (second difference) never exceeds the velocity change's
+    # by more than the ZOH's curvature within a period (a few %)
+    acc = np.abs(np.diff(xs, 2, axis=0)) / dt ** 2
+    dv = np.abs(np.diff(vs, axis=0)) / dt
+    bound = np.maximum(dv[:-1], dv[1:]) * 1.1 + 1e-9
+    assert np.all(acc <= bound), np.max(acc / bound)
+
+
 @pytest.mark.parametrize('device', DEVICES)
 def test_every_device_follows_a_push_through_the_protocol(device: str) -> None:
     """Each mechanism's admittance moves the pose in the direction of a body push on its

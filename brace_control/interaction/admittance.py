@@ -89,6 +89,10 @@ class AdmittanceParams:
     :param min_wrench_capacity: the smallest capacity per wrench axis the ring may pass
         (``trajectory.min_wrench_capacity``), or None.
     :param max_goal_wrench: the largest |goal| per pose axis (inf = capacity alone).
+    :param goal_rate: how fast the wrench the controller tracks moves to a new goal, per
+        pose axis (N/s, N·m/s; inf = a step): a step goal is followed as a ramp
+        (reference shaping), so that the ring never runs into the legs' deceleration limit
+        with the wrench still rising (docs/interaction.md, "Wrench goals").
     """
 
     mass: np.ndarray
@@ -102,6 +106,7 @@ class AdmittanceParams:
     actuator_max_force: float
     min_wrench_capacity: np.ndarray | None = None
     max_goal_wrench: np.ndarray | None = None
+    goal_rate: np.ndarray | None = None
 
     @classmethod
     def from_config(cls, cfg: Any, mechanism: Any) -> 'AdmittanceParams':
@@ -132,6 +137,9 @@ class AdmittanceParams:
             raise ValueError(f'interaction.force_axes: expected {dof} booleans (one per pose axis), '
                              f'got {list(inter["force_axes"])!r}')
         max_goal = per_axis('max_goal_wrench', positive=False)
+        rate = per_axis('goal_rate', positive=False)
+        if np.any(rate < 0.0):
+            raise ValueError(f'interaction.goal_rate: expected numbers >= 0 (0: a step), got {rate.tolist()!r}')
         if np.any(max_goal < 0.0):
             raise ValueError(f'interaction.max_goal_wrench: expected numbers >= 0, got {max_goal.tolist()!r}')
         act, safety, traj = cfg['actuator'], cfg['safety'], cfg['trajectory']
@@ -147,7 +155,8 @@ class AdmittanceParams:
                    actuator_max_velocity=np.full(n, float(act['max_velocity'])),
                    limit_margin=float(traj.get('limit_margin', 0.8)), soft_force_limit=soft,
                    actuator_max_force=float(act['max_force']), min_wrench_capacity=cap_arr,
-                   max_goal_wrench=np.where(max_goal > 0.0, max_goal, np.inf))
+                   max_goal_wrench=np.where(max_goal > 0.0, max_goal, np.inf),
+                   goal_rate=np.where(rate > 0.0, rate, np.inf))
 
 
 class AdmittanceController:
@@ -166,6 +175,8 @@ class AdmittanceController:
         self.x = np.zeros(self.dof)
         self.v = np.zeros(self.dof)
         self.goal = np.zeros(self.dof)
+        #: the wrench tracked now: moves to :attr:`goal` at ``goal_rate``
+        self.goal_now = np.zeros(self.dof)
         self.velocity_limited = 0
         self.stop_reason = ''
         self._decay = np.exp(-params.damping * params.dt / params.mass)
@@ -179,6 +190,7 @@ class AdmittanceController:
         self.mechanism.inverse(x)                    # raises UnreachablePose: not a start pose
         self.x, self.v = x.copy(), np.zeros(self.dof)
         self.goal = np.zeros(self.dof)
+        self.goal_now = np.zeros(self.dof)
         self.velocity_limited = 0
         self.stop_reason = ''
         self.mode = Mode.ACTIVE
@@ -259,15 +271,25 @@ class AdmittanceController:
                           f'> {self.p.soft_force_limit:.1f}')
                 self._brake()
                 raise LimitStop(self.stop_reason)
-        e = np.where(self.p.force_axes, self.goal - w, 0.0)
+        rate = self.p.goal_rate if self.p.goal_rate is not None else np.inf
+        self.goal_now = self.goal_now + np.clip(self.goal - self.goal_now, -rate * self.p.dt, rate * self.p.dt)
+        e = np.where(self.p.force_axes, self.goal_now - w, 0.0)
         p = self._decay
         v_inf = e / self.p.damping
         v_new = np.where(self.p.force_axes, self.v * p + (1.0 - p) * v_inf, 0.0)
         dx = np.where(self.p.force_axes, v_inf * self.p.dt
                       + (self.v - v_inf) * (self.p.mass / self.p.damping) * (1.0 - p), 0.0)
         scale = self._speed_scale(v_new)
-        x_new = self.x + dx * scale
-        v_new = v_new * scale
+        if scale < 1.0:
+            # the virtual model saturates: the pose moves by the trapezoid of the limited
+            # velocity (as braking and the in-cycle acceleration limit do). Scaling the ZOH
+            # step ``dx`` instead moved the pose at ~2/3 of the velocity it reported, and the
+            # next unsaturated or acceleration-limited period caught up in one step (a
+            # 9 m/s^2 spike in the command's second difference)
+            v_new = v_new * scale
+            x_new = self.x + 0.5 * (self.v + v_new) * self.p.dt
+        else:
+            x_new = self.x + dx
         reason = self._check_ahead(x_new, v_new)
         if reason:
             self.stop(reason)
