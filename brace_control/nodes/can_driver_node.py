@@ -674,7 +674,12 @@ class CanDriverNode(LifecycleNode):
         try:
             _, times, q, qd, qdd = joint_knots_from_msg(msg, self.names)
             if times.size == 0:
-                m.stop_motion('cancel requested (empty trajectory)', tag=tag if tag else None)
+                # during interaction the planner's empty trajectory ends the mode for a
+                # position goal (trajectory_node plans it once the 'aborted' event says where)
+                why = ('a position goal arrived (empty trajectory)' if m.executor.source is not None
+                       else 'cancel requested (empty trajectory)')
+                m.stop_motion(why, tag=tag if tag else None)
+                self.publish_events()
                 return
             trajectory = ActuatorTrajectory(times, q, qd, qdd)
         except (MalformedMessage, TrajectoryInvalid) as exc:

@@ -30,10 +30,12 @@ the next, a loop delay of two SYNC periods instead of the 16-47 ms through ROS
   fault, the drives disabled, or a position goal that took over: the reason);
   ``name`` = ``interaction_node/wrench_goal/<n>`` with ``accepted`` | ``rejected``.
   ``values``: ``state``, ``reason``, ``goal``;
-* position goals and interaction do not fight: a planned motion reaching the driver
-  replaces the interaction from the command as it is (continuous position, velocity,
-  acceleration) and the mode ends (``aborted``: "a position goal took over"). An
-  operator's position goal always wins; trajectory_node is unchanged.
+* position goals and interaction do not fight: trajectory_node, given a goal while the
+  mode runs, has the driver end it (an empty trajectory: the virtual motion brakes to
+  rest, ``aborted``: "a position goal arrived") and plans the goal from the positions the
+  driver reports then (docs/interaction.md, "Conventions"). A motion that reaches the
+  driver during interaction anyway replaces it continuously (``aborted``: "a position goal
+  took over"). An operator's position goal always wins.
 """
 from __future__ import annotations
 
