@@ -4,6 +4,8 @@ PYTHON ?= python3
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
 DEVICE ?= lumbar_brace
+# position: the bundled exercise; interaction: zero-torque mode and a wrench goal (issue 14)
+MODE   ?= position
 
 # DDS discovery stays on this machine unless the caller says otherwise.
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
@@ -21,7 +23,7 @@ $(VENV)/.installed: requirements.txt setup.py setup.cfg package.xml
 	touch $@
 
 demo: venv
-	$(PY) -m brace_control.demo --device $(DEVICE) --out demo_output
+	$(PY) -m brace_control.demo --device $(DEVICE) --mode $(MODE) --out demo_output
 
 # pytest exits 5 when it collected no test: that is a failure here, said out loud
 test: venv

@@ -28,6 +28,7 @@ setup(
             'trajectory_node = brace_control.nodes.trajectory_node:main',
             'can_driver_node = brace_control.nodes.can_driver_node:main',
             'kinetics_node = brace_control.nodes.kinetics_node:main',
+            'interaction_node = brace_control.nodes.interaction_node:main',
             'bringup = brace_control.bringup:main',
             'brace-bringup = brace_control.bringup:main',
             'brace-bag = brace_control.bag:main',

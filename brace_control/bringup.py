@@ -62,7 +62,7 @@ __all__ = ['NODE_NAMES', 'STACK_LINKS', 'BringUp', 'ProcessBringUp', 'node_class
            'disable_drives', 'missing_links', 'wait_for_links', 'wait_until_ready', 'main']
 
 #: the nodes of a device, in data-flow order
-NODE_NAMES = ('trajectory_node', 'ik_node', 'can_driver_node', 'kinetics_node')
+NODE_NAMES = ('trajectory_node', 'ik_node', 'can_driver_node', 'kinetics_node', 'interaction_node')
 DRIVER = 'can_driver_node'
 _MANUAL_HINT = ('can_driver_node is unconfigured (--manual-lifecycle): ros2 lifecycle set '
                 '/can_driver_node configure, then activate')

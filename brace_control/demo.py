@@ -2,6 +2,9 @@
 
     python -m brace_control.demo --device lumbar_brace --out demo_output
 
+(``--mode interaction``, ``make demo MODE=interaction``: a zero-torque and wrench-goal
+session instead, :mod:`brace_control.demo_interaction`.)
+
 1. builds the bundled exercise (:mod:`brace_control.exercise`) into ``OUT/exercise``;
 2. brings the four nodes up with the simulated brace on the virtual bus, each node as
    its own process (:class:`brace_control.bringup.ProcessBringUp`; ``--in-process``: all
@@ -344,6 +347,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument('--device', default='lumbar_brace', help='device YAML or name in config/')
     ap.add_argument('--out', default='demo_output', help='output directory')
     ap.add_argument('--rate', type=float, default=1.0, help='replay speed factor')
+    ap.add_argument('--mode', choices=('position', 'interaction'), default='position',
+                    help='position: the bundled exercise (this module); interaction: a scripted '
+                         'zero-torque and wrench-goal session (brace_control.demo_interaction)')
+    ap.add_argument('--quick', action='store_true',
+                    help='interaction mode: a shorter session (one period of sway, 1.5 s per wrench goal)')
     ap.add_argument('--in-process', action='store_true',
                     help='all nodes and the simulator in this process (default: each node as '
                          'its own process; one process needs ~1 core of Python under one GIL, '
@@ -352,6 +360,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     extra = list(DEMO_PARAMS) + (ros[ros.index('--ros-args') + 1:] if '--ros-args' in ros else [])
     if ros and '--ros-args' not in ros:
         ap.error(f'unrecognized arguments: {ros}')
+    if args.mode == 'interaction':
+        from .demo_interaction import run_interaction_demo
+        return run_interaction_demo(args.device, Path(args.out), processes=not args.in_process,
+                                    extra_args=extra, quick=args.quick)
     return run_demo(args.device, Path(args.out), rate=args.rate, processes=not args.in_process,
                     extra_args=extra)
 

@@ -14,6 +14,11 @@ with ``rosbags`` (its own CDR deserializer), the stack's message conventions
   simulator's truth, the peak force above the static load, peak forces and wrench,
   protective stops, and the demo's three verdicts.
 * :func:`plot_run`: ``run.png``.
+
+An interaction session (``make demo MODE=interaction``, :mod:`brace_control.demo_interaction`):
+:func:`read_interaction`, :func:`summarise_interaction` (zero-torque wrench and following
+error during the sway, the wrench step's settling and overshoot, all on the truth),
+:func:`plot_interaction`, :func:`interaction_report` (``run.png``, ``report.txt``, ``report.json``).
 """
 from __future__ import annotations
 
@@ -27,7 +32,9 @@ import numpy as np
 
 __all__ = ['Series', 'Plan', 'GoalOutcome', 'RunData', 'read_run', 'LoadComparison', 'static_load',
            'Summary', 'summarise', 'plot_run', 'EXCESS_LIMIT_N', 'excess_limit', 'pose_error',
-           'pair_stamps', 'STAMP_TOLERANCE_NS']
+           'pair_stamps', 'STAMP_TOLERANCE_NS', 'InteractionRun', 'InteractionReport', 'read_interaction',
+           'summarise_interaction', 'plot_interaction', 'interaction_report', 'step_response',
+           'wrench_pose_axes']
 
 #: N: the peak load-cell force above the static load a demo run may show (linear actuators)
 EXCESS_LIMIT_N = 10.0
@@ -742,3 +749,460 @@ def plot_run(run: RunData, out: str | Path, *, title: str = 'lumbar brace run',
     fig.savefig(out, dpi=90)
     plt.close(fig)
     return out
+
+
+# ---------------------------------------------------------------------- interaction session
+
+#: issue 14's targets for the interaction mode (reported, not required by the demo's exit
+#: code: docs/interaction.md says why the transparency targets are out of the design's reach)
+ZERO_TORQUE_FORCE_N = 5.0
+ZERO_TORQUE_MOMENT_NM = 0.5
+FOLLOW_POSITION_M = 0.002
+FOLLOW_ANGLE_RAD = math.radians(0.3)
+STEP_SETTLING_S = 1.0
+STEP_OVERSHOOT_PCT = 10.0
+#: the band a wrench step settles into (share of the step)
+STEP_BAND = 0.05
+
+
+@dataclass
+class InteractionRun:
+    """A recorded interaction session: the position demo's topics (:class:`RunData`) and the
+    interaction's own, with the script's phases.
+
+    :ivar body: ``/brace/sim/body_pose``: where the patient's trunk wants to be (stamped).
+    :ivar rest: ``/brace/sim/body_rest``: the trunk's rest pose the script published.
+    :ivar wrench_goal: ``/brace/wrench_goal`` in pose-axis components (stamped).
+    :ivar setpoint: ``/brace/pose_setpoint``: the interaction node's stream (stamped).
+    :ivar phases: ``(name, start s, end s)`` from the bag's start.
+    :ivar force_axes: the device's ``interaction.force_axes``.
+    :ivar soft_force_limit: ``safety.soft_force_limit`` as the stack resolves it (N, N·m).
+    :ivar statuses: every ``/brace/goal_status`` event as ``(recorded s, name, state, reason)``
+        (the interaction node's ``interaction_node/interaction/<n>``, trajectory_node's goals).
+    """
+
+    run: RunData
+    body: Series
+    rest: Series
+    wrench_goal: Series
+    setpoint: Series
+    phases: list[tuple[str, float, float]]
+    force_axes: np.ndarray
+    soft_force_limit: float
+    statuses: list[tuple[float, str, str, str]] = field(default_factory=list)
+    script: dict[str, Any] = field(default_factory=dict)
+
+    def phase(self, name: str) -> tuple[float, float]:
+        """``(start, end)`` s of a phase; ``(nan, nan)`` if the session did not reach it."""
+        for n, a, b in self.phases:
+            if n == name:
+                return a, b
+        return math.nan, math.nan
+
+
+def wrench_pose_axes(s: Series, theta: tuple[np.ndarray, np.ndarray] | None, kind: str) -> np.ndarray:
+    """A platform-frame wrench series (``/brace/wrench``, ``/brace/sim/wrench``) in the pose
+    coordinates' conjugate components (docs/interaction.md): planar forces rotated into the
+    base frame by ``R(theta)``, ``theta = (t, value)`` interpolated at the samples' times;
+    other kinds as they are."""
+    w = np.array(s.v, dtype=float)
+    if kind == 'planar' and len(s) and theta is not None and theta[0].size:
+        th = np.interp(s.t, theta[0], theta[1])
+        c, sn = np.cos(th), np.sin(th)
+        fx, fy = w[:, 0].copy(), w[:, 1].copy()
+        w[:, 0], w[:, 1] = c * fx - sn * fy, sn * fx + c * fy
+    return w
+
+
+def read_interaction(path: str | Path, phases: str | Path | Mapping[str, Any] | None = None, *,
+                     config: Any) -> InteractionRun:
+    """:func:`read_run` and the interaction topics of a bag, the script's phases
+    (``phases.json`` of :mod:`brace_control.demo_interaction`: wall-clock ns) placed on the
+    bag's time axis."""
+    import json
+
+    from rosbags.rosbag2 import Reader
+
+    from .mechanisms import mechanism_from_config
+    from .nodes import topics
+    from .nodes.msgs import pose_from_msg, pose_kind, stamp_to_ns, status_values
+    cfg = _device_config(config)
+    mech = mechanism_from_config(cfg)
+    kind = pose_kind(mech)
+    run = read_run(path, config=cfg)
+    store = _typestore()
+    rows: dict[str, list] = {'body': [], 'rest': [], 'goal': [], 'setpoint': []}
+    statuses: list[tuple[float, str, str, str]] = []
+    pose_topics = {topics.SIM_BODY_POSE: 'body', topics.SIM_BODY_REST: 'rest',
+                   topics.POSE_SETPOINT: 'setpoint'}
+    with Reader(Path(path)) as reader:
+        t0 = reader.start_time
+        for conn, t_ns, data in reader.messages():
+            if conn.topic not in pose_topics and conn.topic not in (topics.WRENCH_GOAL, topics.GOAL_STATUS):
+                continue
+            m = store.deserialize_cdr(data, conn.msgtype)
+            if conn.topic == topics.GOAL_STATUS:
+                v = status_values(m)
+                statuses.append(((t_ns - t0) * 1e-9, m.name, v.get('state', m.message), v.get('reason', '')))
+                continue
+            stamp = stamp_to_ns(m.header.stamp)
+            t = ((stamp or t_ns) - t0) * 1e-9
+            if conn.topic == topics.WRENCH_GOAL:
+                f, tq = m.wrench.force, m.wrench.torque
+                w = {'planar': (f.x, f.y, tq.z), 'xy': (f.x, f.y), 'path': (f.x,),
+                     'spherical': (tq.x, tq.y, tq.z)}[kind]
+                rows['goal'].append((t, list(w), stamp))
+            else:
+                rows[pose_topics[conn.topic]].append((t, pose_from_msg(m, mechanism=mech, kind=kind), stamp))
+
+    def series(key: str) -> Series:
+        r = sorted(rows[key], key=lambda x: x[0])
+        if not r:
+            return Series.empty(mech.dof)
+        return Series(np.array([x[0] for x in r]), np.array([np.asarray(x[1], float) for x in r]),
+                      np.array([x[2] for x in r], dtype=np.int64))
+
+    if phases is None:
+        doc: Mapping[str, Any] = {}
+    elif isinstance(phases, Mapping):
+        doc = phases
+    else:
+        doc = json.loads(Path(phases).read_text())
+    spans = [(p['name'], (p['start_ns'] - t0) * 1e-9, (p['end_ns'] - t0) * 1e-9) for p in doc.get('phases', [])]
+    axes = np.atleast_1d(np.asarray(cfg['interaction']['force_axes'], dtype=bool)).ravel()
+    axes = np.full(mech.dof, bool(axes[0])) if axes.size == 1 else axes
+    force_limit = float(cfg.get_path('safety.force_limit'))
+    soft = float(cfg['safety'].get('soft_force_limit', 0.0) or 0.8 * force_limit)
+    return InteractionRun(run, series('body'), series('rest'), series('goal'), series('setpoint'),
+                          spans, axes, soft, statuses, dict(doc.get('script', {})))
+
+
+@dataclass
+class InteractionReport:
+    """The numbers of an interaction session (:func:`summarise_interaction`); all from the
+    simulator's truth unless named "measured"."""
+
+    axes: list[tuple[str, str]]                 # force-controlled axes: (wrench label, unit)
+    pose_axes: list[tuple[str, str]]            # the same axes' pose (label, unit)
+    zero_torque_window: tuple[float, float]     # s: the sway (its first and last quarter period skipped)
+    zero_torque_max_wrench: list[float]         # max |W_i| true over the sway (N, N·m)
+    zero_torque_max_wrench_measured: list[float]
+    zero_torque_max_wrench_all: list[float]     # over every zero-torque phase (lean, sway, return)
+    follow_max_error: list[float]               # max |ring_i - body_i| over the sway (m, rad)
+    follow_samples: int
+    step_axis: str
+    step_goal: float
+    step_window: tuple[float, float]
+    step_settling_s: float                      # within STEP_BAND of the goal from then on
+    step_overshoot_pct: float
+    step_final: float                           # mean over the step's last 0.5 s
+    events: list[tuple[float, str, str, str]]   # interaction events: (t, name, state, reason)
+    ended: str                                  # the session's last state: stopped | aborted | ...
+    position_goal: str                          # the final position goal's state
+    protective_stops: list[str]
+    peak_force: float                           # max |true actuator force| while interacting
+    soft_force_limit: float
+    effort_unit: str
+    position_goal_reason: str = ''              # why it did not succeed
+
+    def _fmt(self, values: Sequence[float], *, pose: bool = False) -> str:
+        out = []
+        for (label, unit), v in zip(self.pose_axes if pose else self.axes, values):
+            if pose:
+                scale = 1e3 if unit == 'mm' else 180.0 / math.pi
+                out.append(f'{label} {v * scale:.2f} {unit}')
+            else:
+                out.append(f'|{label}| {v:.2f} {unit}')
+        return ', '.join(out)
+
+    def targets(self) -> list[tuple[str, bool]]:
+        """Issue 14's targets, each with whether this run met it."""
+        lim_w = [ZERO_TORQUE_FORCE_N if unit == 'N' else ZERO_TORQUE_MOMENT_NM for _, unit in self.axes]
+        lim_p = [FOLLOW_POSITION_M if unit == 'mm' else FOLLOW_ANGLE_RAD for _, unit in self.pose_axes]
+        return [
+            (f'zero-torque wrench during the sway below {self._fmt(lim_w)}',
+             all(v < lim for v, lim in zip(self.zero_torque_max_wrench, lim_w))),
+            (f'ring follows the trunk within {self._fmt(lim_p, pose=True)}',
+             all(v < lim for v, lim in zip(self.follow_max_error, lim_p))),
+            (f'step settles within {STEP_BAND:.0%} in <= {STEP_SETTLING_S:g} s',
+             self.step_settling_s <= STEP_SETTLING_S),
+            (f'step overshoot <= {STEP_OVERSHOOT_PCT:g} %', self.step_overshoot_pct <= STEP_OVERSHOOT_PCT),
+        ]
+
+    @property
+    def ok(self) -> bool:
+        """The session ran through: the mode stopped on request, the position goal
+        succeeded, no protective stop."""
+        return self.ended == 'stopped' and self.position_goal == 'succeeded' and not self.protective_stops
+
+    def lines(self) -> list[str]:
+        a, b = self.zero_torque_window
+        out = [f'zero-torque, sway ({a:.1f}-{b:.1f} s): max true wrench {self._fmt(self.zero_torque_max_wrench)} '
+               f'(measured {self._fmt(self.zero_torque_max_wrench_measured)})',
+               f'zero-torque, every phase: max true wrench {self._fmt(self.zero_torque_max_wrench_all)}',
+               f'ring vs trunk during the sway: max {self._fmt(self.follow_max_error, pose=True)} '
+               f'over {self.follow_samples} samples of the same stamp',
+               f'wrench step {self.step_axis} {self.step_goal:g}: settles within {STEP_BAND:.0%} after '
+               f'{self.step_settling_s:.2f} s, overshoot {self.step_overshoot_pct:.1f} %, '
+               f'mean over its last 0.5 s {self.step_final:.2f}',
+               f'peak actuator force while interacting: {self.peak_force:.1f} {self.effort_unit} '
+               f'(soft limit {self.soft_force_limit:g})',
+               'interaction: ' + ', '.join(f'{s}' + (f' ({r})' if r else '') for _, _, s, r in self.events),
+               f'position goal after the session: {self.position_goal or "none"}'
+               + (f' ({self.position_goal_reason})' if self.position_goal_reason else ''),
+               'protective stops: ' + ('; '.join(self.protective_stops) or 'none')]
+        out += [f'target (issue 14): {text}: {"yes" if ok else "NO"}' for text, ok in self.targets()]
+        out.append(f'verdict: the session ran through (stopped on request, position goal succeeded, '
+                   f'no protective stop): {"yes" if self.ok else "NO"}')
+        return out
+
+    def as_dict(self) -> dict[str, Any]:
+        labels = [label for label, _ in self.axes]
+        plabels = [label for label, _ in self.pose_axes]
+        return {
+            'zero_torque': {'window_s': list(self.zero_torque_window),
+                            'max_wrench_true': dict(zip(labels, self.zero_torque_max_wrench)),
+                            'max_wrench_measured': dict(zip(labels, self.zero_torque_max_wrench_measured)),
+                            'max_wrench_true_all_phases': dict(zip(labels, self.zero_torque_max_wrench_all)),
+                            'max_ring_body_error_si': dict(zip(plabels, self.follow_max_error)),
+                            'paired_samples': self.follow_samples},
+            'step': {'axis': self.step_axis, 'goal': self.step_goal, 'window_s': list(self.step_window),
+                     'settling_s': self.step_settling_s, 'overshoot_pct': self.step_overshoot_pct,
+                     'final_mean': self.step_final, 'band': STEP_BAND},
+            'peak_actuator_force': self.peak_force, 'soft_force_limit': self.soft_force_limit,
+            'effort_unit': self.effort_unit,
+            'events': [{'t': t, 'name': n, 'state': s, 'reason': r} for t, n, s, r in self.events],
+            'ended': self.ended, 'position_goal': self.position_goal,
+            'position_goal_reason': self.position_goal_reason,
+            'protective_stops': self.protective_stops,
+            'targets': [{'target': t, 'met': ok} for t, ok in self.targets()],
+            'ok': self.ok,
+        }
+
+
+def step_response(t: np.ndarray, w: np.ndarray, goal: float, *, band: float = STEP_BAND
+                  ) -> tuple[float, float]:
+    """``(settling time, overshoot %)`` of a step to ``goal`` from ``t = 0``: the time from
+    which every sample is within ``band x |goal|`` of it (inf if the last one is not), and
+    how far past the goal the response went, in % of ``|goal|``."""
+    if t.size == 0 or goal == 0.0:
+        return math.inf, math.nan
+    inside = np.abs(w - goal) <= band * abs(goal)
+    outside = np.flatnonzero(~inside)
+    if outside.size == 0:
+        settle = 0.0
+    elif outside[-1] + 1 < t.size:
+        settle = float(t[outside[-1] + 1])
+    else:
+        settle = math.inf
+    overshoot = max(0.0, (float(np.max(w * math.copysign(1.0, goal))) - abs(goal)) / abs(goal) * 100.0)
+    return settle, overshoot
+
+
+def summarise_interaction(ir: InteractionRun) -> InteractionReport:
+    """The session in numbers (:class:`InteractionReport`), from the truth:
+
+    * the sway's window: the phase ``sway`` without its first and last quarter period (the
+      sway's envelope rises and falls there, and the start's transient), clipped to the interaction being active (``started`` to the first
+      ``stopping`` / end); zero-torque phases: ``zero-torque at rest``, ``lean``, ``sway``,
+      ``settle``, ``return``, clipped likewise;
+    * the largest |true wrench| per force-controlled axis there (``/brace/sim/wrench`` in
+      pose-axis components, :func:`wrench_pose_axes` with the true theta);
+    * the largest |ring - trunk| per axis over ``/brace/sim/pose`` and ``/brace/sim/body_pose``
+      samples of the identical stamp during the sway;
+    * the step: from the stamp of the wrench goal that is nonzero on the script's step axis
+      to the next goal's, :func:`step_response` of the true wrench on that axis.
+    """
+    run = ir.run
+    kind = run.kind
+    force = np.flatnonzero(ir.force_axes)
+    waxes = [(label, unit) for _, _, label, unit in run.wrench_axes]
+    axes = [waxes[i] for i in force]
+    paxes = [(run.pose_axes[i][0], run.pose_axes[i][1]) for i in force]
+    inter = [ev for ev in ir.statuses if '/interaction/' in ev[1]]
+    started = next((t for t, _, s, _ in inter if s == 'started'), math.nan)
+    ended_at = next((t for t, _, s, _ in inter if s in ('stopping', 'stopped', 'aborted')), math.inf)
+    ended = next((s for _, _, s, _ in reversed(inter) if s in ('stopped', 'aborted')), 'running')
+
+    theta_true = (run.truth_pose.t, run.truth_pose.v[:, 2]) if kind == 'planar' and len(run.truth_pose) else None
+    theta_est = (run.pose.t, run.pose.v[:, 2]) if kind == 'planar' and len(run.pose) else None
+    w_true = wrench_pose_axes(run.wrench_true, theta_true, kind)
+    w_meas = wrench_pose_axes(run.wrench, theta_est, kind)
+
+    def clip(a: float, b: float) -> tuple[float, float]:
+        return max(a, started), min(b, ended_at)
+
+    def peak(s: Series, w: np.ndarray, spans: Sequence[tuple[float, float]]) -> list[float]:
+        if not len(s):
+            return [math.nan] * force.size
+        m = np.zeros(len(s), dtype=bool)
+        for a, b in spans:
+            m |= (s.t >= a) & (s.t <= b)
+        return [float(np.max(np.abs(w[m, i]))) if np.any(m) else math.nan for i in force]
+
+    sa, sb = ir.phase('sway')
+    f_hz = float(ir.script.get('frequency_hz', 0.0) or 0.0)
+    quarter = 0.25 / f_hz if f_hz > 0 else 0.0
+    sway = clip(sa + quarter, sb - quarter)
+    zero_spans = [clip(*ir.phase(n)) for n in ('zero-torque at rest', 'lean', 'sway', 'settle', 'return')]
+    ia, ib = pair_stamps(run.truth_pose.stamp, ir.body.stamp, tol_ns=0)
+    keep = (run.truth_pose.t[ia] >= sway[0]) & (run.truth_pose.t[ia] <= sway[1]) if ia.size else ia
+    ia, ib = ia[keep], ib[keep]
+    err = (np.max(np.abs(run.truth_pose.v[ia][:, force] - ir.body.v[ib][:, force]), axis=0).tolist()
+           if ia.size else [math.nan] * force.size)
+
+    k = int(ir.script.get('step_axis', force[0] if force.size else 0))
+    goals = ir.wrench_goal
+    nz = np.flatnonzero(np.abs(goals.v[:, k]) > 0) if len(goals) else np.zeros(0, dtype=int)
+    if nz.size:
+        g0 = int(nz[0])
+        ta = float(goals.t[g0])
+        tb = float(goals.t[g0 + 1]) if g0 + 1 < len(goals) else min(ended_at, run.duration_s)
+        goal = float(goals.v[g0, k])
+        m = (run.wrench_true.t >= ta) & (run.wrench_true.t < tb)
+        settle, overshoot = step_response(run.wrench_true.t[m] - ta, w_true[m, k], goal)
+        last = m & (run.wrench_true.t >= tb - 0.5)
+        final = float(np.mean(w_true[last, k])) if np.any(last) else math.nan
+    else:
+        ta = tb = goal = settle = overshoot = final = math.nan
+    summary = summarise(run)
+    js = run.force_true if len(run.force_true) else run.force
+    act = (js.t >= started) & (js.t <= (ended_at if math.isfinite(ended_at) else run.duration_s))
+    peak_force = float(np.max(np.abs(js.v[act]))) if np.any(act) else math.nan
+    position = [e for e in ir.statuses if e[1].startswith('trajectory_node/goal/')
+                and e[2] in TERMINAL_STATES and e[0] > ended_at]
+    return InteractionReport(
+        axes, paxes, sway, peak(run.wrench_true, w_true, [sway]), peak(run.wrench, w_meas, [sway]),
+        peak(run.wrench_true, w_true, zero_spans), [float(x) for x in err], int(ia.size),
+        waxes[k][0], goal, (ta, tb), settle, overshoot, final, inter, ended,
+        position[-1][2] if position else '', summary.protective_stops, peak_force,
+        ir.soft_force_limit, run.effort_unit, position[-1][3] if position else '')
+
+
+
+def _goal_steps(ir: InteractionRun, t_end: float) -> tuple[np.ndarray, np.ndarray]:
+    """The wrench goal as a step curve (pose-axis components): zero from the mode's start
+    (``~/start``: the goal is zero), each goal from its stamp, until the mode's end."""
+    inter = [ev for ev in ir.statuses if '/interaction/' in ev[1]]
+    t0 = next((t for t, _, s, _ in inter if s == 'started'), math.nan)
+    t1 = next((t for t, _, s, _ in inter if s in ('stopping', 'stopped', 'aborted')), t_end)
+    if not math.isfinite(t0):
+        return np.zeros(0), np.zeros((0, ir.force_axes.size))
+    ts, vs = [t0], [np.zeros(ir.force_axes.size)]
+    for t, v in zip(ir.wrench_goal.t, ir.wrench_goal.v):
+        if t0 <= t <= t1:
+            ts += [t, t]
+            vs += [vs[-1], v]
+    ts.append(t1)
+    vs.append(vs[-1])
+    return np.array(ts), np.array(vs)
+
+
+def plot_interaction(ir: InteractionRun, out: str | Path, *, title: str = 'interaction session') -> Path:
+    """``run.png`` of an interaction session: per pose axis the trunk (where it wants to be,
+    ``/brace/sim/body_pose``), the ring (``/brace/sim/pose``) and the interaction node's
+    setpoint; the ring's error against the trunk; per axis the wrench goal, the measured
+    wrench (``/brace/wrench``) and the true one (``/brace/sim/wrench``), both in pose-axis
+    components; the true actuator forces with the soft force limit. Phases shaded. Agg."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    run = ir.run
+    kind = run.kind
+    dof = len(run.pose_axes)
+    n_rows = dof + 1
+    fig, ax = plt.subplots(n_rows, 2, figsize=(15, 2.6 * n_rows + 0.8), sharex=True, squeeze=False)
+    colors = plt.rcParams['axes.prop_cycle'].by_key()['color']
+    shade = {'sway': '#dde8f5', 'wrench step': '#f5e3d5', 'position goal': '#e4f2de'}
+
+    def phases(a: Any) -> None:
+        for name, t0, t1 in ir.phases:
+            if name in shade:
+                a.axvspan(t0, t1, color=shade[name], zorder=0, label=name)
+
+    theta_true = (run.truth_pose.t, run.truth_pose.v[:, 2]) if kind == 'planar' and len(run.truth_pose) else None
+    theta_est = (run.pose.t, run.pose.v[:, 2]) if kind == 'planar' and len(run.pose) else None
+    w_true = wrench_pose_axes(run.wrench_true, theta_true, kind)
+    w_meas = wrench_pose_axes(run.wrench, theta_est, kind)
+    gt, gv = _goal_steps(ir, run.duration_s)
+    for i, (name, unit, scale) in enumerate(run.pose_axes):
+        a = ax[i, 0]
+        phases(a)
+        if len(ir.body):
+            a.plot(ir.body.t, ir.body.v[:, i] * scale, '--', color='k', lw=1.2, label='trunk (/brace/sim/body_pose)')
+        if len(run.truth_pose):
+            a.plot(run.truth_pose.t, run.truth_pose.v[:, i] * scale, '-', color=colors[1], lw=1.4,
+                   label='ring (/brace/sim/pose)')
+        if len(ir.setpoint):
+            a.plot(ir.setpoint.t, ir.setpoint.v[:, i] * scale, '-', color=colors[0], lw=0.7, alpha=0.8,
+                   label='setpoint (/brace/pose_setpoint)')
+        a.set_ylabel(f'{name} ({unit})' + ('' if ir.force_axes[i] else '\nheld'))
+        a.grid(alpha=0.3)
+        b = ax[i, 1]
+        phases(b)
+        _, _, label, wunit = run.wrench_axes[i]
+        if gt.size:
+            b.plot(gt, gv[:, i], '-', color='k', lw=2.0, alpha=0.5, label='goal (/brace/wrench_goal)')
+        if len(run.wrench):
+            b.plot(run.wrench.t, w_meas[:, i], '-', color=colors[0], lw=0.9, label='measured (/brace/wrench)')
+        if len(run.wrench_true):
+            b.plot(run.wrench_true.t, w_true[:, i], ':', color=colors[3], lw=1.2, label='true (/brace/sim/wrench)')
+        b.set_ylabel(f'{label} on the body ({wunit})')
+        b.grid(alpha=0.3)
+    ax[0, 0].legend(fontsize=8, loc='best', ncol=2)
+    ax[0, 0].set_title(title)
+    ax[0, 1].legend(fontsize=8, loc='best', ncol=2)
+    ax[0, 1].set_title('wrench of the brace on the body (pose-axis components, base frame)')
+    # ring - trunk
+    a = ax[dof, 0]
+    phases(a)
+    ia, ib = pair_stamps(run.truth_pose.stamp, ir.body.stamp, tol_ns=0)
+    for i in np.flatnonzero(ir.force_axes):
+        name, unit, scale = run.pose_axes[i]
+        if ia.size:
+            a.plot(run.truth_pose.t[ia], (run.truth_pose.v[ia, i] - ir.body.v[ib, i]) * scale, '-',
+                   color=colors[i % 10], lw=1.0, label=f'{name} ({unit})')
+    a.set_ylabel('ring - trunk')
+    a.legend(fontsize=8, loc='best')
+    a.grid(alpha=0.3)
+    # true actuator forces
+    a = ax[dof, 1]
+    phases(a)
+    js = run.force_true if len(run.force_true) else run.force
+    names = run.names or [f'#{k}' for k in range(js.v.shape[1] if len(js) else 0)]
+    for k in range(js.v.shape[1] if len(js) else 0):
+        a.plot(js.t, js.v[:, k], '-', color=colors[k % 10], lw=1.0, label=f'{names[k]} true')
+    for sgn in (1, -1):
+        a.axhline(sgn * ir.soft_force_limit, color='r', lw=0.8, ls='--',
+                  label='safety.soft_force_limit' if sgn > 0 else None)
+    a.set_ylabel(f'actuator force ({run.effort_unit})')
+    a.legend(fontsize=8, loc='best', ncol=2)
+    a.grid(alpha=0.3)
+    for col in range(2):
+        ax[n_rows - 1, col].set_xlabel('time (s)')
+    fig.tight_layout()
+    out = Path(out)
+    fig.savefig(out, dpi=90)
+    plt.close(fig)
+    return out
+
+
+def interaction_report(bag: str | Path, phases: str | Path, *, config: Any, out: str | Path,
+                       title: str = 'interaction session') -> InteractionReport:
+    """Read an interaction session back (:func:`read_interaction`), write ``OUT/run.png``
+    (:func:`plot_interaction`), ``OUT/report.txt`` (:meth:`InteractionReport.lines`) and
+    ``OUT/report.json`` (:meth:`InteractionReport.as_dict`); the report."""
+    import json
+    out = Path(out)
+    ir = read_interaction(bag, phases, config=config)
+    report = summarise_interaction(ir)
+    plot_interaction(ir, out / 'run.png', title=title)
+    (out / 'report.txt').write_text('\n'.join(report.lines()) + '\n')
+    (out / 'report.json').write_text(json.dumps(report.as_dict(), indent=1, default=_json_number))
+    return report
+
+
+def _json_number(x: Any) -> Any:
+    if isinstance(x, (np.floating, np.integer)):
+        return x.item()
+    raise TypeError(f'not JSON serialisable: {x!r}')

@@ -223,6 +223,28 @@ SCHEMA: dict[str, Param] = {
     'sim.drive_bandwidth_hz': _ro(30.0, 'position-loop bandwidth of the simulated CSP drives, '
                                   'Kp = 2 pi x bandwidth', (1.0, 500.0), 'Hz'),
     'sim.truth_rate_hz': _ro(20.0, 'rate of the ground-truth topics /brace/sim/*', (0.1, 1000.0), 'Hz'),
+    # the simulated patient (brace_control/sim/brace.py, docs/interaction.md)
+    'sim.sway_amplitude': _ro([0.0], "amplitude of the patient's sway per pose axis ([0.0]: none)",
+                              (0.0, 10.0), 'm or rad'),
+    'sim.sway_frequency_hz': _ro(0.0, "frequency of the patient's sway (0: none)", (0.0, 20.0), 'Hz'),
+    'sim.sway_phase': _ro([0.0], 'phase of the sway per pose axis ([0.0]: all zero)',
+                          (-2 * math.pi, 2 * math.pi), 'rad'),
+    'sim.patient_max_wrench': _ro([0.0], "the patient's largest effort per pose axis (0: no limit)",
+                                  (0.0, 1e5), 'N or N·m'),
+    # interaction_node and the driver's in-cycle admittance (brace_control/interaction)
+    'interaction.force_axes': _ro([False], 'per pose axis: force controlled (true) or held (false)'),
+    'interaction.mass': _ro([1.0], 'virtual mass per pose axis', (1e-9, 1e6), 'kg or kg·m²'),
+    'interaction.damping': _ro([100.0], 'virtual damping per pose axis', (1e-9, 1e8),
+                               'N·s/m or N·m·s/rad'),
+    'interaction.rate_hz': _ro(200.0, 'admittance update rate', (10.0, 2000.0), 'Hz'),
+    'interaction.max_goal_wrench': _ro([0.0], "largest |wrench goal| per pose axis (0: the mechanism's "
+                                       'wrench capacity alone)', (0.0, 1e5), 'N or N·m'),
+    'interaction.stop_deceleration': _ro([0.1], 'deceleration to rest on ~/stop and at a limit, per pose '
+                                         'axis', (1e-6, 1e4), 'm/s² or rad/s²'),
+    'interaction.goal_rate': _ro([0.0], 'a new wrench goal is tracked as a ramp at this rate per pose axis '
+                                 '(0: a step)', (0.0, 1e6), 'N/s or N·m/s'),
+    'interaction.wrench_timeout': _ro(0.1, 'no /brace/wrench for this long -> the mode stops',
+                                      (0.005, 5.0), 's'),
 }
 
 
@@ -453,7 +475,7 @@ def _fmt(x: float) -> str:
 def _expected(spec: Param) -> str:
     t = param_type(spec)
     words = {'float': 'a float', 'int': 'an integer', 'bool': 'true or false', 'str': 'a string',
-             'float[]': 'a list of floats', 'int[]': 'a list of integers', 'str[]': 'a list of strings',
+             'float[]': 'a list of floats', 'int[]': 'a list of integers', 'str[]': 'a list of strings', 'bool[]': 'a list of booleans',
              'number': 'a float or a list of floats', 'points': 'a list of point coordinates (floats)',
              'int|str': 'an integer or a string'}[t]
     if spec.default is not None:
@@ -524,6 +546,8 @@ def check_value(name: str, value: Any, spec: Param, source: str | None = None) -
         numbers = list(value) if ok else None
     elif t == 'str[]':
         ok = isinstance(value, (list, tuple)) and all(isinstance(v, str) for v in value)
+    elif t == 'bool[]':
+        ok = isinstance(value, (list, tuple)) and all(isinstance(v, bool) for v in value)
     else:  # pragma: no cover - a schema typo
         raise TypeError(f'schema type {t!r} of {name!r}')
     if not ok:

@@ -711,6 +711,26 @@ def _lumbar_capacity(pose, limit=250.0):
     return np.array([limit / np.abs(G[:, k]).max() for k in range(3)])
 
 
+def test_a_path_from_below_the_capacity_minimum_may_leave_it_but_not_go_deeper(mech, cfg):
+    """After a capacity stop the ring rests just short of trajectory.min_wrench_capacity
+    (Mz 0.9 N·m, the eq. 3 oracle): a path back towards home (capacity rising) is planned; one
+    further towards the theta = 0 singularity (capacity falling) is still rejected."""
+    lim = Limits.from_config(cfg, dof=3)
+    need = lim.min_wrench_capacity[2]
+    lo, hi = math.radians(1.0), math.radians(5.0)          # Mz capacity: ~0.5 .. ~2.4 N·m
+    for _ in range(60):                                   # bisection on the oracle
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if _lumbar_capacity([0.0, 0.39, mid])[2] < need else (lo, mid)
+    boundary = np.array([0.0, 0.39, lo - 1e-6])
+    assert need * 0.99 < _lumbar_capacity(boundary)[2] < need
+    plan = plan_motion(mech, boundary, HOME, Profile.MINIMUM_JERK, lim, duration=1.5)
+    assert plan.trajectory.duration > 0.0
+    with pytest.raises(PlanRejected) as err:
+        plan_motion(mech, boundary, np.array([0.0, 0.39, math.radians(1.0)]), Profile.MINIMUM_JERK,
+                    lim, duration=1.5)
+    assert err.value.violation is Violation.CAPACITY and 'along Mz' in err.value.reason
+
+
 def test_a_path_through_too_little_wrench_capacity_is_rejected_naming_where(mech, cfg):
     lim = Limits.from_config(cfg, dof=3)
     assert lim.min_wrench_capacity is not None

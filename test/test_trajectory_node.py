@@ -259,6 +259,28 @@ def test_cancel_stops_the_running_motion_and_the_next_starts_where_it_stopped(ro
     assert stack.states('1') == [('1', 'accepted'), ('1', 'cancelled')]
 
 
+def test_a_goal_during_interaction_ends_the_mode_and_starts_where_the_driver_stopped(ros):
+    """The driver's in-cycle admittance moved the command away from the node's hold: a goal
+    then sends the stop (an empty trajectory), waits for the interaction's end event and is
+    planned from the positions it reports (not from the stale hold: the splice would fail)."""
+    node, stack = start(ros)
+    stack.exec_pub.publish(status_msg('can_driver_node/interaction/1', 'started', stamp=1,
+                                      kind='started', reason='', positions=list(lumbar_eq3(HOME))))
+    ros.spin_until(lambda: node.runner.interacting, what='interaction seen')
+    stack.goal_pub.publish(pose_msg(HOME + [0.0, -0.01, 0.0], frame_id=FRAME))
+    ros.spin_until(lambda: len(stack.trajectories) == 1, what='the stop')
+    assert len(stack.trajectories[0].points) == 0
+    ros.spin_for(0.3)
+    assert len(stack.trajectories) == 1                  # waits for the driver's report
+    moved = HOME + np.array([0.0, 0.008, 0.02])           # where the admittance came to rest
+    stack.exec_pub.publish(status_msg('can_driver_node/interaction/1', 'aborted', stamp=1,
+                                      kind='aborted', reason='a position goal arrived (empty trajectory)',
+                                      positions=list(lumbar_eq3(moved))))
+    ros.spin_until(lambda: len(stack.trajectories) == 2, what='the goal\'s motion')
+    np.testing.assert_allclose(stack.knots(stack.trajectories[1]).positions[0], moved, atol=1e-7)
+    assert not node.runner.interacting
+
+
 def test_a_platform_that_does_not_follow_is_aborted_with_the_error(ros):
     node, stack = start(ros, **{'safety.settle_time': 0.3})
     goal = HOME + [0.01, 0.0, 0.0]

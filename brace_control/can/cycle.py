@@ -171,6 +171,8 @@ class CycleMixin:
         with self._exec_lock:
             if feed:
                 self._feed_stream(t_wake)
+            if self.executor.source is not None:
+                self.executor.forces = self._latest_forces()
             q, v = self.executor.step(t_wake + period)
             if self.executor.events:
                 self._events.extend(self.executor.events)
@@ -263,6 +265,46 @@ class CycleMixin:
         self._last_sp_position = sp.position
         self.accepted_setpoints += 1
         self.executor.set_stream(sp.position, velocity, sp.time)
+
+    # ------------------------------------------------------------------ interaction
+    def _latest_forces(self) -> np.ndarray:
+        """Each drive's load-cell force (N or N·m) of its latest TPDO1: the answers to the
+        last SYNC (NaN for a drive that has not answered: the admittance stops on it)."""
+        return np.array([d.sample.force if d.sample is not None else math.nan for d in self._drives])
+
+    def start_interaction(self, source: object, tag: int) -> str | None:
+        """Run the admittance ``source`` in the cycle from the command at rest
+        (:meth:`~.execution.PathExecutor.begin_interaction`).
+
+        :returns: None when started, else why not (nothing moves).
+        """
+        now = time.perf_counter()
+        with self._exec_lock:
+            if not self._tracking or self.state.value != 'enabled':
+                return f'the drives are not enabled (master {self.state.value})'
+            reason = self.executor.begin_interaction(source, tag, now=now)
+            self._events.extend(self.executor.events)
+            self.executor.events.clear()
+            return reason
+
+    def stop_interaction(self, reason: str) -> None:
+        """Brake the interaction to rest along its direction, then hold (event 'stopped')."""
+        with self._exec_lock:
+            self.executor.stop_interaction(reason, now=time.perf_counter())
+            self._events.extend(self.executor.events)
+            self.executor.events.clear()
+
+    def set_interaction_goal(self, wrench: object) -> None:
+        """The wrench goal of the running interaction (pose axes).
+
+        :raises ValueError: no interaction runs; :raises GoalRejected: the controller's
+            checks (held axis, ``max_goal_wrench``, capacity at the current pose).
+        """
+        with self._exec_lock:
+            src = self.executor.source
+            if src is None:
+                raise ValueError('no interaction is running')
+            src.controller.set_goal(wrench)
 
     # ------------------------------------------------------------------ soft force limit
     def _begin_soft_stop(self, t_wake: float) -> None:

@@ -29,7 +29,14 @@ or delays one axis alone:
   velocity change of a cycle is one vector, scaled down as a whole to the acceleration
   limit, and the velocity as a whole to the speed limit. When the stream stops, the
   velocity vector shrinks to zero within ``a_max`` along its current direction, from where
-  the command is (it does not travel on to the last setpoint).
+  the command is (it does not travel on to the last setpoint);
+* interaction (admittance control in the cycle, :mod:`brace_control.interaction.inloop`):
+  an *interaction source* takes over from the command at rest and, every ``n`` SYNCs,
+  turns the load-cell forces of the latest SYNC into the command ``dt`` ahead (the pose of
+  the virtual mass-damper, through the inverse kinematics: on the manifold by
+  construction; ``n > 1``: a cubic Hermite segment per period). A trajectory splices onto
+  it (a position goal wins; the interaction is reported preempted), so does a setpoint
+  stream; :meth:`PathExecutor.stop` brakes the virtual motion along its direction.
 
 Pure numpy: no bus, no ROS. :class:`PathExecutor` is driven by the master's SYNC thread
 (one caller thread); its inputs come from API threads through the master.
@@ -91,6 +98,7 @@ class ExecutionState(str, enum.Enum):
     HOLD = 'hold'                  # at rest at the commanded position
     TRAJECTORY = 'trajectory'      # following a trajectory (possibly braking along it)
     STREAM = 'stream'              # tracking the setpoint stream (possibly braking)
+    INTERACTION = 'interaction'    # the admittance in the cycle (possibly braking)
 
 
 @dataclass(frozen=True)
@@ -100,7 +108,11 @@ class ExecutionEvent:
     ``kind``: ``'accepted'`` (scheduled), ``'rejected'``, ``'started'``, ``'finished'``
     (its last point reached), ``'stopped'`` (braked to rest before its end: cancel, halt,
     protective stop, the stream took over; ``reason`` says which), ``'preempted'`` (a newer
-    trajectory replaced it). ``positions``: the command when it happened; ``time``: when, on
+    trajectory replaced it). ``motion``: ``'trajectory'``, or ``'interaction'`` for the
+    in-cycle admittance (``tag`` its session), whose kinds are ``'started'``,
+    ``'stopping'`` (braking: ``reason`` why), ``'stopped'`` (at rest after a requested stop),
+    ``'aborted'`` (at rest after a limit, halt or fault), ``'preempted'`` (a trajectory or
+    the stream took over, continuously). ``positions``: the command when it happened; ``time``: when, on
     the executor's clock; ``lag``: s that clock was behind the master's then (SYNCs a stalled
     host missed while moving: the motion runs that much later than planned).
     """
@@ -111,6 +123,7 @@ class ExecutionEvent:
     positions: tuple[float, ...] = ()
     time: float = 0.0
     lag: float = 0.0
+    motion: str = 'trajectory'
 
 
 @dataclass
@@ -195,6 +208,14 @@ class PathExecutor:
         self._stream: tuple[np.ndarray, np.ndarray, float] | None = None   # (q, v, time received)
         self._stream_stopping = False
         self.events: list[ExecutionEvent] = []
+        #: the interaction source while interacting (:mod:`brace_control.interaction.inloop`)
+        self.source = None
+        self._source_tag = 0
+        self._source_end = 'stopped'
+        self._source_k = 0
+        self._segment: tuple[np.ndarray, ...] | None = None   # (q0, v0, q1, v1) over n SYNCs
+        #: the load-cell forces of the latest SYNC (the cycle sets them before :meth:`step`)
+        self.forces: np.ndarray | None = None
 
     # ------------------------------------------------------------------ inputs
     @property
@@ -274,6 +295,84 @@ class PathExecutor:
         elif self.state is ExecutionState.STREAM:
             self._stream = None
             self._stream_stopping = True
+        elif self.state is ExecutionState.INTERACTION:
+            self.stop_interaction(reason, now=now, end='aborted')
+
+    # ------------------------------------------------------------------ interaction
+    def begin_interaction(self, source: object, tag: int, *, now: float) -> str | None:
+        """The interaction ``source`` takes over from the command (at rest, nothing pending).
+
+        :returns: None when started (event 'started'), else the reason (nothing changes).
+        """
+        if not self.anchored:
+            return 'the drives are not following commands (not enabled)'
+        if self.state is not ExecutionState.HOLD or self._pending:
+            return f'the brace is moving ({self.state.value}); interaction starts from rest'
+        try:
+            source.begin(self.q, self.v)
+        except ValueError as exc:
+            return f'the commanded pose cannot start interaction: {exc}'
+        self.source, self._source_tag, self._source_end = source, int(tag), 'stopped'
+        self._source_k = 0
+        self._segment = None
+        self.state = ExecutionState.INTERACTION
+        self.events.append(self._event(tag, 'started', '', now, motion='interaction'))
+        return None
+
+    def stop_interaction(self, reason: str, *, now: float, end: str = 'stopped') -> None:
+        """Brake the interaction's virtual motion to rest (direction kept), then hold;
+        ``end``: the final event's kind ('stopped' requested, 'aborted' a limit or halt)."""
+        src = self.source
+        if src is None or self.state is not ExecutionState.INTERACTION:
+            return
+        if src.controller.mode.value == 'active':
+            src.controller.stop(reason)
+            self._source_end = end
+            self.events.append(self._event(self._source_tag, 'stopping', reason, now, motion='interaction'))
+
+    def _end_interaction(self, kind: str, reason: str, t: float) -> None:
+        if self.source is not None:
+            self.events.append(self._event(self._source_tag, kind, reason, t, motion='interaction'))
+        self.source = None
+        self._segment = None
+
+    def _track_interaction(self, t: float, dt: float) -> None:
+        """One SYNC of the interaction: every ``n`` SYNCs the source's update from the latest
+        forces (the command one admittance period ahead), in between the Hermite segment."""
+        if dt <= 0.0:
+            return
+        src = self.source
+        n = src.n_syncs
+        if self._source_k % n == 0:
+            forces = self.forces if self.forces is not None else np.full(self.n, math.nan)
+            q1, v1, reason = src.update(forces)
+            if reason:
+                self._source_end = 'aborted'
+                self.events.append(self._event(self._source_tag, 'stopping', reason, t, motion='interaction'))
+            self._segment = (self.q.copy(), self.v.copy(), np.asarray(q1, float), np.asarray(v1, float))
+        self._source_k += 1
+        q0, v0, q1, v1 = self._segment
+        j = (self._source_k - 1) % n + 1
+        if j == n:
+            q, v = q1, v1
+        else:
+            # cubic Hermite from (q0, v0) to (q1, v1) over h = n periods, at s = j / n
+            h = n * dt
+            s = j / n
+            h00, h10, h01, h11 = (2 * s ** 3 - 3 * s ** 2 + 1, s ** 3 - 2 * s ** 2 + s,
+                                  -2 * s ** 3 + 3 * s ** 2, s ** 3 - s ** 2)
+            d00, d10, d01, d11 = (6 * s ** 2 - 6 * s, 3 * s ** 2 - 4 * s + 1, -6 * s ** 2 + 6 * s,
+                                  3 * s ** 2 - 2 * s)
+            q = h00 * q0 + h10 * h * v0 + h01 * q1 + h11 * h * v1
+            v = (d00 * q0 + d10 * h * v0 + d01 * q1 + d11 * h * v1) / h
+        self.a = (v - self.v) / dt
+        self.q, self.v = q, v
+        if j == n and src.controller.mode.value == 'idle':
+            reason = src.controller.stop_reason
+            self._end_interaction(self._source_end, reason, t)
+            self.v = np.zeros(self.n)
+            self.a = np.zeros(self.n)
+            self.state = ExecutionState.HOLD
 
     def set_stream(self, q: Sequence[float], v: Sequence[float] | None, received: float) -> None:
         """The latest setpoint of the stream (already step-checked); it takes over from a
@@ -310,6 +409,8 @@ class PathExecutor:
         if self._stream is not None and self.state is not ExecutionState.STREAM:
             # the stream takes over from the command as it is (continuous p, v, a)
             self._drop_pending('the setpoint stream took over', t_exec)
+            if self.state is ExecutionState.INTERACTION:
+                self._end_interaction('preempted', 'the setpoint stream took over', t_exec)
             if self._running is not None:
                 self._finish('stopped', 'the setpoint stream took over', t_exec, rest=False)
             self.state = ExecutionState.STREAM
@@ -325,13 +426,15 @@ class PathExecutor:
             self._advance(t_exec, dt)
         elif self.state is ExecutionState.STREAM:
             self._track_stream(dt)
+        elif self.state is ExecutionState.INTERACTION:
+            self._track_interaction(t_exec, dt)
         self.t = t_exec
         return self.q.copy(), self.v.copy()
 
     def _event(self, tag: int, kind: str, reason: str, t: float,
-               positions: np.ndarray | None = None) -> ExecutionEvent:
+               positions: np.ndarray | None = None, *, motion: str = 'trajectory') -> ExecutionEvent:
         q = self.q if positions is None else positions
-        return ExecutionEvent(tag, kind, reason, tuple(q), t, self.lag)
+        return ExecutionEvent(tag, kind, reason, tuple(q), t, self.lag, motion)
 
     # ------------------------------------------------------------------ trajectory
     def _check(self, traj: ActuatorTrajectory, lo: np.ndarray | None,
@@ -392,6 +495,8 @@ class PathExecutor:
             return
         if self._running is not None:
             self._finish('preempted', f'replaced by trajectory {new.tag}', t, rest=False)
+        if self.state is ExecutionState.INTERACTION:
+            self._end_interaction('preempted', f'replaced by trajectory {new.tag}', t)
         self._blend = None
         if np.max(np.abs(dq)) > EXACT_SPLICE or np.max(np.abs(dv)) > 1e-9 or np.max(np.abs(da)) > 1e-7:
             self._blend = self._make_blend(t, dq, dv, da)
@@ -494,6 +599,8 @@ class PathExecutor:
         self._s = 1.0
         self._stream = None
         self._stream_stopping = False
+        if self.source is not None:
+            self._end_interaction('aborted', reason, t)
 
     # ------------------------------------------------------------------ stream
     def _track_stream(self, dt: float) -> None:

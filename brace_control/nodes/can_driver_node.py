@@ -96,8 +96,11 @@ subscribes to it):
 * ``/brace/sim/wrench`` (``WrenchStamped`` in ``platform_frame``): the wrench the brace
   applies to the body, in ``/brace/wrench``'s convention (the mechanism's ``wrench`` of
   the true pose and efforts);
+* ``/brace/sim/body_pose`` (``PoseStamped`` in ``base_frame``): where the simulated
+  patient's trunk wants to be now (its rest pose plus the sway ``sim.sway_*``);
 * and it subscribes ``/brace/sim/body_rest`` (``PoseStamped``): where the simulated
-  patient's body rests (the body's stiffness pulls the ring towards it).
+  patient's body rests (the body's stiffness pulls the ring towards it; the sway is
+  added on top).
 
 One mechanism model per driver process: the node builds it once and hands it to the master
 (home lengths, actuator ranges) and to the simulated brace. The mechanism classes keep no
@@ -188,7 +191,8 @@ class CanDriverNode(LifecycleNode):
         self._previous_switch_interval: float | None = None
         self._constructed = False             # a ConfigError leaves a half-built node to destroy
         super().__init__(node_name, **kwargs)
-        self.cfg = declare_device_parameters(self, ('mechanism', 'actuator', 'can', 'safety', 'sim'))
+        self.cfg = declare_device_parameters(self, ('mechanism', 'actuator', 'can', 'safety', 'sim',
+                                                     'trajectory', 'interaction'))
         self.names: tuple[str, ...] = tuple(self.cfg['mechanism']['actuator_names'])
         self.mechanism = self._mechanism()
         self.master_config = MasterConfig.from_device_config(self.cfg, mechanism=self.mechanism)
@@ -236,6 +240,7 @@ class CanDriverNode(LifecycleNode):
                                   ('home', self._home, ACTIVE), ('relieve', self._relieve, ACTIVE)):
             self.create_service(Trigger, f'~/{name}', self._trigger(name, fn, allowed),
                                 callback_group=self._service_group)
+        self._init_interaction()
         rate = float(self.cfg['can']['joint_state_rate_hz'])
         # timers of the active state are created cancelled (rclpy's create_timer has no
         # autostart in Humble) and reset on activate
@@ -472,7 +477,7 @@ class CanDriverNode(LifecycleNode):
                                  topics.STATE_QOS, callback_group=self._stream_group)
         self._truth_pubs = tuple(self.create_lifecycle_publisher(t, name, topics.STATE_QOS) for t, name in (
             (JointState, topics.SIM_JOINT_STATES), (PoseStamped, topics.SIM_POSE),
-            (WrenchStamped, topics.SIM_WRENCH)))
+            (WrenchStamped, topics.SIM_WRENCH), (PoseStamped, topics.SIM_BODY_POSE)))
         kind = pose_kind(self.mechanism)
         base, platform = self.cfg['base_frame'], self.cfg['platform_frame']
         last_wrench: list[Any] = [None, None]       # (pose, efforts) bytes, the platform wrench
@@ -487,10 +492,13 @@ class CanDriverNode(LifecycleNode):
             truth = sim.truth_at(wall) if wall and time.time() - wall < 0.1 else sim.truth()
             stamp = ns_to_stamp(round(truth.stamp * 1e9) if truth.stamp else
                                 self.get_clock().now().nanoseconds)
-            js_pub, pose_pub, wrench_pub = self._truth_pubs
+            js_pub, pose_pub, wrench_pub, body_pub = self._truth_pubs
             js_pub.publish(joint_state(self.names, position=truth.lengths, velocity=truth.velocities,
                                        effort=truth.forces, stamp=stamp))
             pose_pub.publish(pose_msg(truth.pose, frame_id=base, stamp=stamp, mechanism=self.mechanism))
+            if truth.body_pose is not None:
+                body_pub.publish(pose_msg(truth.body_pose, frame_id=base, stamp=stamp,
+                                          mechanism=self.mechanism))
             # a pure function of (pose, efforts), which at rest repeat bit for bit: computed
             # again only when they changed
             key = (truth.pose.tobytes(), truth.forces.tobytes())
@@ -585,6 +593,69 @@ class CanDriverNode(LifecycleNode):
             return
         self.accepted += 1
 
+    # ------------------------------------------------------------------ interaction (in the cycle)
+
+    def _init_interaction(self) -> None:
+        """The in-cycle admittance's interface (docs/interaction.md): services
+        ``~/interaction_start`` / ``~/interaction_stop`` (Trigger) and the goal topic
+        ``/brace/interaction/goal``; its events go out on ``/brace/execution_status`` as
+        ``can_driver_node/interaction/<session>``. interaction_node is the user-facing side."""
+        from geometry_msgs.msg import WrenchStamped
+        self._interaction_sessions = 0
+        self.create_service(Trigger, '~/interaction_start', self._on_interaction_start,
+                            callback_group=self._stream_group)
+        self.create_service(Trigger, '~/interaction_stop', self._on_interaction_stop,
+                            callback_group=self._stream_group)
+        self.create_subscription(WrenchStamped, topics.INTERACTION_GOAL, self._on_interaction_goal,
+                                 topics.GOAL_QOS, callback_group=self._stream_group)
+
+    def _interaction_source(self) -> Any:
+        from ..interaction import AdmittanceParams
+        from ..interaction.inloop import InLoopAdmittance
+        params = AdmittanceParams.from_config(self.cfg, self.mechanism)
+        return InLoopAdmittance(self.mechanism, params, sync_period=self.master_config.period,
+                                a_max=self.master_config.limits.a_max)
+
+    def _on_interaction_start(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        if self.mechanism is None:
+            response.success, response.message = False, 'no mechanism model: no interaction'
+            return response
+        try:
+            source = self._interaction_source()
+        except (ValueError, KeyError) as exc:
+            response.success, response.message = False, f'interaction parameters: {exc}'
+            return response
+        self._interaction_sessions += 1
+        tag = self._interaction_sessions
+        why = self.master.start_interaction(source, tag)
+        response.success = why is None
+        response.message = (f'interaction {tag} started at {source.dt * 1e3:g} ms '
+                            f'({source.n_syncs} SYNC)' if why is None else why)
+        self.publish_events()
+        return response
+
+    def _on_interaction_stop(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        self.master.stop_interaction('stop requested')
+        response.success, response.message = True, 'decelerating to rest'
+        self.publish_events()
+        return response
+
+    def _on_interaction_goal(self, msg: Any) -> None:
+        """The wrench goal in pose-axis components (interaction_node checked it; the
+        controller checks again against the pose it is at; a rejection is an event)."""
+        from ..interaction import GoalRejected
+        from .msgs import pose_kind
+        kind = pose_kind(self.mechanism)
+        f, t = msg.wrench.force, msg.wrench.torque
+        w = {'spherical': [t.x, t.y, t.z], 'planar': [f.x, f.y, t.z], 'xy': [f.x, f.y]}.get(kind, [f.x])
+        try:
+            self.master.set_interaction_goal(w)
+        except (ValueError, GoalRejected) as exc:
+            tag = self._interaction_sessions
+            self._exec_pub.publish(status_msg(f'{self.get_name()}/interaction/{tag}', 'goal_rejected',
+                                              level=DiagnosticStatus.WARN, stamp=tag, kind='goal_rejected',
+                                              reason=str(exc), goal=list(w)))
+
     # ------------------------------------------------------------------ planned motions
 
     def _on_trajectory(self, msg: JointTrajectory) -> None:
@@ -603,7 +674,12 @@ class CanDriverNode(LifecycleNode):
         try:
             _, times, q, qd, qdd = joint_knots_from_msg(msg, self.names)
             if times.size == 0:
-                m.stop_motion('cancel requested (empty trajectory)', tag=tag if tag else None)
+                # during interaction the planner's empty trajectory ends the mode for a
+                # position goal (trajectory_node plans it once the 'aborted' event says where)
+                why = ('a position goal arrived (empty trajectory)' if m.executor.source is not None
+                       else 'cancel requested (empty trajectory)')
+                m.stop_motion(why, tag=tag if tag else None)
+                self.publish_events()
                 return
             trajectory = ActuatorTrajectory(times, q, qd, qdd)
         except (MalformedMessage, TrajectoryInvalid) as exc:
@@ -632,7 +708,7 @@ class CanDriverNode(LifecycleNode):
             level = (DiagnosticStatus.ERROR if e.kind == 'rejected' or 'protective stop' in e.reason
                      else DiagnosticStatus.WARN if e.kind == 'stopped' else DiagnosticStatus.OK)
             self._exec_pub.publish(status_msg(
-                f'{self.get_name()}/trajectory/{e.tag}', e.kind, level=level, stamp=e.tag,
+                f'{self.get_name()}/{e.motion}/{e.tag}', e.kind, level=level, stamp=e.tag,
                 kind=e.kind, reason=e.reason, positions=list(e.positions),
                 time=self._ros_minus_perf_ns + round(e.time * 1e9), lag=e.lag))
         self.publish_state()

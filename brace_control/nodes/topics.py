@@ -11,7 +11,7 @@ __all__ = [
     'POSE_GOAL', 'POSE_PATH', 'POSE_TRAJECTORY', 'ACTUATOR_TRAJECTORY', 'POSE_SETPOINT',
     'ACTUATOR_SETPOINT', 'JOINT_STATES', 'POSE', 'POSE_WITH_COVARIANCE', 'WRENCH',
     'GOAL_STATUS', 'EXECUTION_STATUS', 'DRIVER_STATE', 'DIAGNOSTICS', 'SIM_JOINT_STATES',
-    'SIM_POSE', 'SIM_WRENCH', 'WRENCH_GOAL', 'SIM_BODY_REST',
+    'SIM_POSE', 'SIM_WRENCH', 'WRENCH_GOAL', 'INTERACTION_GOAL', 'SIM_BODY_REST', 'SIM_BODY_POSE',
     'GOAL_QOS', 'TRAJECTORY_QOS', 'SETPOINT_QOS', 'STATE_QOS', 'MEASURED_QOS', 'STATUS_QOS',
     'LATCHED_QOS', 'DIAGNOSTICS_QOS',
 ]
@@ -23,6 +23,9 @@ POSE_GOAL = '/brace/pose_goal'
 POSE_PATH = '/brace/pose_path'
 #: ``geometry_msgs/WrenchStamped``: the wrench the interaction mode holds on the body
 WRENCH_GOAL = '/brace/wrench_goal'
+#: ``geometry_msgs/WrenchStamped``: interaction_node -> the driver's in-cycle admittance: the
+#: checked goal in the pose axes' components (planar: force.x, force.y base frame, torque.z)
+INTERACTION_GOAL = '/brace/interaction/goal'
 
 # ------------------------------------------------------------------------- motion
 #: ``trajectory_msgs/MultiDOFJointTrajectory``: a planned motion, once, whole (pose knots)
@@ -62,6 +65,9 @@ SIM_POSE = '/brace/sim/pose'
 SIM_WRENCH = '/brace/sim/wrench'
 #: ``geometry_msgs/PoseStamped``: where the simulated body rests (a test moves the patient)
 SIM_BODY_REST = '/brace/sim/body_rest'
+#: ``geometry_msgs/PoseStamped``: where the simulated patient's trunk wants to be now (the rest
+#: pose plus the sway), the truth a zero-torque test compares the ring's pose with
+SIM_BODY_POSE = '/brace/sim/body_pose'
 
 # -------------------------------------------------------------------------- QoS
 #: Goals: reliable, keep all. No goal may be lost without a status, even in a flood: the

@@ -234,6 +234,7 @@ class TrajectoryNode(Node):
 
     def _plan_one(self, request: GoalRequest) -> list[GoalEvent]:
         deadline = time.monotonic() + STOPPING_WAIT_S
+        ended_interaction = False
         for _attempt in range(3):
             with self._lock:
                 start = None
@@ -253,9 +254,19 @@ class TrajectoryNode(Node):
                     start = self.runner.start_state(now, measured=self._fresh_measured(now))
                     if start is not None or now > deadline:
                         break
+                    if self.runner.interacting and not ended_interaction:
+                        # a position goal ends interaction: the driver brakes the admittance
+                        # to rest and reports where ('aborted' with the positions); the goal
+                        # is planned from there (docs/interaction.md, "Position goals")
+                        self._traj_pub.publish(self._empty_trajectory(0))
+                        ended_interaction = True
                     self._wake.wait(timeout=0.02)      # a cancelled motion is still braking
                 if self._closing:
                     return [GoalEvent(request.goal_id, GoalState.ABORTED, 'shutdown')]
+                if start is None and ended_interaction:
+                    return [GoalEvent(request.goal_id, GoalState.REJECTED,
+                                      f'interaction did not end within {STOPPING_WAIT_S:g} s '
+                                      '(no report from the driver)')]
                 if start is None:
                     return [GoalEvent(request.goal_id, GoalState.REJECTED,
                                       f'the brace is still stopping after a cancel ({STOPPING_WAIT_S:g} s '
@@ -311,6 +322,13 @@ class TrajectoryNode(Node):
 
     def _on_execution(self, msg: DiagnosticStatus) -> None:
         values = status_values(msg)
+        if '/interaction/' in msg.name:
+            # the driver's in-cycle admittance: its tags are sessions, not our stamps
+            with self._lock:
+                self.runner.on_interaction(values.get('kind', msg.message),
+                                           _floats(values.get('positions', '')))
+                self._wake.notify_all()
+            return
         try:
             tag = int(values.get('stamp', ''))
         except ValueError:
@@ -362,16 +380,20 @@ class TrajectoryNode(Node):
                       GoalEvent(superseded[0].goal_id, GoalState.CANCELLED,
                                 'cancel requested before it was planned')] + events
         if tag is not None:
-            stop = MultiDOFJointTrajectory()
-            stop.header.frame_id = self.base_frame
-            stop.header.stamp = ns_to_stamp(tag)
-            stop.joint_names = [self.platform_frame]
-            self._traj_pub.publish(stop)
+            self._traj_pub.publish(self._empty_trajectory(tag))
             self._timer.reset()
         self._report(events)
         response.success, response.message = True, message
         self.get_logger().info(f'cancel: {message}')
         return response
+
+    def _empty_trajectory(self, tag: int) -> MultiDOFJointTrajectory:
+        """A stop for the driver: no points, ``header.stamp`` = the motion it stops (0: any)."""
+        stop = MultiDOFJointTrajectory()
+        stop.header.frame_id = self.base_frame
+        stop.header.stamp = ns_to_stamp(tag)
+        stop.joint_names = [self.platform_frame]
+        return stop
 
     # ------------------------------------------------------------------ status out
     def _report(self, events: Sequence[GoalEvent]) -> None:

@@ -10,8 +10,9 @@ on the bus (:class:`~brace_control.sim.host.SimBus`) and, on every SYNC from the
    speed/acceleration limits, end stops);
 2. the physics (quasi-static, the thoracic ring massless):
 
-   * the torso on the ring: ``W_body = -K (pose - rest) - D pose_dot`` (``sim.stiffness``,
-     ``sim.damping`` 3x3 row-major, ``sim.rest_pose``);
+   * the torso on the ring: ``W_body = sat(-K (pose - rest(t))) - D (pose_dot - rest_dot(t))``
+     (``sim.stiffness``, ``sim.damping`` 3x3 row-major, ``sim.rest_pose``; the patient,
+     see "The patient" below);
    * the pose of the thoracic ring: the equilibrium continuous with the previous pose
      (the branch ``mech.forward_nearest(q, pose)`` follows) of the ring between the legs
      and the torso, each leg = actuator length ``q_i`` in series with a stiffness
@@ -44,7 +45,24 @@ The actuators' physical lengths at power-up are ``mech.inverse(mech.home_pose)``
 parked brace); the incremental encoders read 0 until homed (method 35 with 607Ch = the
 home length in counts, see docs/can.md).
 
-Ground truth for tests: :meth:`SimulatedBrace.truth` (a consistent snapshot).
+The patient (the body's own motion and effort, docs/interaction.md):
+
+* ``rest(t)`` is where the trunk would be without the brace: the base rest pose
+  (``sim.rest_pose``, or the last ``/brace/sim/body_rest`` via :meth:`SimulatedBrace.
+  set_rest_pose`) plus a scripted sway ``sim.sway_amplitude[i] sin(2 pi
+  sim.sway_frequency_hz t + sim.sway_phase[i])`` per pose axis (m or rad; all zero, the
+  default: no sway), ``t`` the simulated time since power-up;
+* the tissue between ring and trunk is the spring ``K`` and the damper ``D`` on the
+  *relative* motion (pose - rest, pose_dot - rest_dot): a ring that moves with the trunk
+  carries no load;
+* ``K (rest - pose)`` is what the patient's muscles must produce to hold their trunk
+  where they want it: it saturates per pose axis at ``sim.patient_max_wrench`` (N, N·m;
+  0 = no limit). A brace that fights the patient's motion loads the patient up to that
+  effort (the load cells show it) and no further: beyond it the patient yields and the
+  brace moves the trunk; a patient cannot push the brace harder than that either.
+
+Ground truth for tests: :meth:`SimulatedBrace.truth` (a consistent snapshot; ``body_pose``,
+``body_rate``: ``rest(t)`` and its rate).
 Fault injection: :attr:`SimulatedBrace.faults` (:class:`~brace_control.sim.faults.FaultInjector`).
 
 Example::
@@ -99,6 +117,9 @@ class BraceTruth:
     :ivar stamp: the bus timestamp (s, wall clock) of the SYNC this state follows: the instant
         the drives' TPDOs answering that SYNC describe, so measured and true states of the
         same SYNC carry the same time.
+    :ivar body_pose: where the patient's trunk wants to be, ``rest(t)`` (the rest pose plus
+        the sway; the ring is pulled towards it).
+    :ivar body_rate: its rate ``rest_dot(t)``.
     """
 
     lengths: np.ndarray
@@ -112,6 +133,8 @@ class BraceTruth:
     sync_count: int
     time: float
     stamp: float = 0.0
+    body_pose: np.ndarray | None = None
+    body_rate: np.ndarray | None = None
 
 
 def _solve3(a: list[list[float]], r: list[float]) -> tuple[float, float, float]:
@@ -189,6 +212,8 @@ class SimulatedBrace:
         self.stiffness = _matrix(sim.get('stiffness', [0.0] * dof * dof), dof, 'sim.stiffness')
         self.damping = _matrix(sim.get('damping', [0.0] * dof * dof), dof, 'sim.damping')
         self.rest_pose = np.asarray(sim.get('rest_pose', self.mechanism.home_pose), dtype=float)
+        self._init_patient(sim)
+        self._body = self.body_at(0.0)
         self.noise_n = float(sim['load_cell_noise'])
         self.offset_n = float(sim['load_cell_offset'])
         self._rng = np.random.default_rng(int(sim['seed'] if seed is None else seed))
@@ -312,6 +337,84 @@ class SimulatedBrace:
             self.rest_pose = arr.copy()
             self._static = None            # the held state is no longer in equilibrium
 
+    def _init_patient(self, sim: Mapping[str, Any]) -> None:
+        """``sim.sway_amplitude``, ``sim.sway_frequency_hz``, ``sim.sway_phase``,
+        ``sim.patient_max_wrench`` (module docstring, "The patient").
+
+        :raises ConfigError: a value of the wrong length, negative or not finite.
+        """
+        dof = self.dof
+
+        def per_axis(key: str, default: float) -> np.ndarray:
+            raw = sim.get(key, [default])
+            arr = np.atleast_1d(np.asarray(raw, dtype=float)).ravel()
+            if arr.size == 1 and float(arr[0]) == default:
+                arr = np.full(dof, default)
+            if arr.shape != (dof,) or not np.all(np.isfinite(arr)):
+                raise ConfigError(f'sim.{key}: expected {dof} finite numbers (one per pose axis), '
+                                  f'got {raw!r}')
+            return arr
+
+        #: sway amplitude per pose axis (m, rad); all zero: no sway
+        self.sway_amplitude = per_axis('sway_amplitude', 0.0)
+        #: sway phase per pose axis (rad)
+        self.sway_phase = per_axis('sway_phase', 0.0)
+        freq = sim.get('sway_frequency_hz', 0.0)
+        if isinstance(freq, bool) or not isinstance(freq, (int, float)) or not math.isfinite(freq) \
+                or freq < 0.0:
+            raise ConfigError(f'sim.sway_frequency_hz = {freq!r}: expected a number >= 0 (Hz)')
+        #: sway frequency (Hz)
+        self.sway_frequency_hz = float(freq)
+        limit = per_axis('patient_max_wrench', 0.0)
+        if np.any(limit < 0.0):
+            raise ConfigError(f'sim.patient_max_wrench: expected numbers >= 0 (N, N·m per pose '
+                              f'axis; 0 = no limit), got {limit.tolist()!r}')
+        #: the patient's largest effort per pose axis (N, N·m); inf = no limit
+        self.patient_max_wrench = np.where(limit > 0.0, limit, np.inf)
+        self._swaying = bool(np.any(self.sway_amplitude != 0.0)) and self.sway_frequency_hz > 0.0
+
+    def set_sway(self, amplitude: Any, frequency_hz: float, phase: Any = None) -> None:
+        """Start (or change, or with zero amplitude end) the patient's sway now: from the next
+        SYNC ``rest + A sin(2 pi f (t - t_now) + phi)``. Thread safe.
+
+        :raises ValueError: not ``dof`` finite amplitudes / phases, or a negative frequency.
+        """
+        a = np.asarray(amplitude, dtype=float).ravel()
+        ph = np.zeros(self.dof) if phase is None else np.asarray(phase, dtype=float).ravel()
+        if a.shape != (self.dof,) or ph.shape != (self.dof,) or not np.all(np.isfinite(a)) \
+                or not np.all(np.isfinite(ph)):
+            raise ValueError(f'sway: expected {self.dof} finite amplitudes and phases, got '
+                             f'{amplitude!r}, {phase!r}')
+        if not math.isfinite(frequency_hz) or frequency_hz < 0.0:
+            raise ValueError(f'sway frequency {frequency_hz!r}: expected a number >= 0 (Hz)')
+        with self.lock:
+            w = 2.0 * math.pi * float(frequency_hz)
+            self.sway_amplitude, self.sway_frequency_hz = a.copy(), float(frequency_hz)
+            self.sway_phase = ph - w * self._time          # t - t_now in the sine
+            self._swaying = bool(np.any(a != 0.0)) and frequency_hz > 0.0
+            self._static = None
+
+    def body_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Where the patient's trunk wants to be at simulated time ``t`` (s) and its rate:
+        ``rest + A sin(w t + phi)``, ``A w cos(w t + phi)``, ``w = 2 pi sim.sway_frequency_hz``."""
+        if not self._swaying:
+            return self.rest_pose.copy(), np.zeros(self.dof)
+        w = 2.0 * math.pi * self.sway_frequency_hz
+        arg = w * t + self.sway_phase
+        return (self.rest_pose + self.sway_amplitude * np.sin(arg),
+                self.sway_amplitude * w * np.cos(arg))
+
+    def _spring(self, pose: np.ndarray, rest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The patient's spring ``-K (pose - rest)``, each pose axis saturated at
+        ``sim.patient_max_wrench``, and its derivative ``d/dpose`` (rows of the saturated
+        axes zero)."""
+        w = -self.stiffness @ (pose - rest)
+        lim = self.patient_max_wrench
+        free = np.abs(w) <= lim
+        if bool(np.all(free)):
+            return w, self.stiffness
+        return np.clip(w, -lim, lim), self.stiffness * free[:, None]
+
     def static_forces(self, q: np.ndarray, guess: np.ndarray | None = None
                       ) -> tuple[np.ndarray, np.ndarray]:
         """The quasi-static equilibrium of device and body for drive positions ``q`` (no
@@ -393,6 +496,9 @@ class SimulatedBrace:
         c = self.damping / dt if dt > 0 else np.zeros((dof, dof))
         prev = self._pose
         pose = prev.copy()
+        rest, rest_dot = self._body
+        # the damper acts on the motion relative to the trunk: D (pose_dot - rest_dot)
+        prev_rel = prev + rest_dot * dt
         for _ in range(30):
             lengths, J = self._kinematics(pose)
             J = np.asarray(J, dtype=float)
@@ -401,12 +507,13 @@ class SimulatedBrace:
             if self.cable:
                 taut = f < 0.0
                 f = np.where(taut, f, 0.0)
-            w_body = -self.stiffness @ (pose - self.rest_pose) - c @ (pose - prev)
+            w_spring, dspring = self._spring(pose, rest)
+            w_body = w_spring - c @ (pose - prev_rel)
             r = J.T @ f + w_body
             if float(np.max(np.abs(r))) <= self.equilibrium_tol:
                 break
             Jt = J[taut]
-            pose = pose + np.linalg.solve(k * (Jt.T @ Jt) + self.stiffness + c, r)
+            pose = pose + np.linalg.solve(k * (Jt.T @ Jt) + dspring + c, r)
         else:
             self.equilibrium_failures += 1
         if self.cable:
@@ -420,10 +527,11 @@ class SimulatedBrace:
         assert legs is not None
         K = self.stiffness.tolist()
         C = (self.damping / dt).tolist() if dt > 0 else [[0.0] * 3 for _ in range(3)]
-        A0 = [[K[i][j] + C[i][j] for j in range(3)] for i in range(3)]
-        rest = self.rest_pose.tolist()
-        prev = self._pose.tolist()
-        pose = list(prev)
+        rest_arr, rest_dot = self._body
+        rest = rest_arr.tolist()
+        lim = self.patient_max_wrench.tolist()
+        prev = (self._pose + rest_dot * dt).tolist()     # damper on the motion relative to the trunk
+        pose = self._pose.tolist()
         qs = q.tolist()
         tol = self.equilibrium_tol
         rows: list[tuple[float, float, float]] = []
@@ -442,12 +550,15 @@ class SimulatedBrace:
                 f.append(k * (qi - n))
             dp = [pose[j] - rest[j] for j in range(3)]
             dv = [pose[j] - prev[j] for j in range(3)]
-            w = [-(K[i][0] * dp[0] + K[i][1] * dp[1] + K[i][2] * dp[2])
+            spring = [-(K[i][0] * dp[0] + K[i][1] * dp[1] + K[i][2] * dp[2]) for i in range(3)]
+            free = [abs(spring[i]) <= lim[i] for i in range(3)]      # the patient's effort limit
+            w = [(spring[i] if free[i] else math.copysign(lim[i], spring[i]))
                  - (C[i][0] * dv[0] + C[i][1] * dv[1] + C[i][2] * dv[2]) for i in range(3)]
             r = [rows[0][j] * f[0] + rows[1][j] * f[1] + rows[2][j] * f[2] + w[j] for j in range(3)]
             if max(abs(r[0]), abs(r[1]), abs(r[2])) <= tol:
                 return np.array(pose), np.array(rows), np.array(w), np.array(f)
-            a = [[A0[i][j] + k * (rows[0][i] * rows[0][j] + rows[1][i] * rows[1][j]
+            a = [[(K[i][j] if free[i] else 0.0) + C[i][j]
+                  + k * (rows[0][i] * rows[0][j] + rows[1][i] * rows[1][j]
                                   + rows[2][i] * rows[2][j]) for j in range(3)] for i in range(3)]
             d0, d1, d2 = _solve3(a, r)
             pose = [pose[0] + d0, pose[1] + d1, pose[2] + d2]
@@ -530,7 +641,8 @@ class SimulatedBrace:
         mech = self.mechanism
         pose, J = self._rigid_pose(q, moving)
         pose_dot = (pose - self._pose) / dt if dt > 0 else np.zeros(self.dof)
-        w_body = -self.stiffness @ (pose - self.rest_pose) - self.damping @ pose_dot
+        rest, rest_dot = self._body
+        w_body = self._spring(pose, rest)[0] - self.damping @ (pose_dot - rest_dot)
         if J is None:
             J = np.asarray(mech.jacobian(pose), dtype=float)
         f = np.linalg.lstsq(J.T, -w_body, rcond=None)[0]
@@ -554,6 +666,10 @@ class SimulatedBrace:
         lengths = [d.length_m for d in self.drives]
         rates = [d.velocity_mps for d in self.drives]
         moving_q = any(v != 0.0 for v in rates)              # as np.any: NaN counts as moving
+        # the patient's trunk at the end of this step (a swaying trunk is never at rest)
+        self._body = self.body_at(self._time + dt)
+        if self._swaying:
+            self._static = None
         self._elapsed += dt
         static = self._static
         if static is not None and dt > 0 and not moving_q \
@@ -604,4 +720,5 @@ class SimulatedBrace:
         self._time += dt
         self._sync_count += 1 if dt > 0 else 0
         return BraceTruth(q, q_dot, pose.copy(), pose_dot, w_body, brace_wrench, forces,
-                          counts, self._sync_count, self._time, self.host.last_sync_stamp)
+                          counts, self._sync_count, self._time, self.host.last_sync_stamp,
+                          self._body[0], self._body[1])

@@ -26,6 +26,10 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = ['Limits', 'Violation', 'PathCheck', 'check_path', 'check_pose', 'check_capacity']
 
+#: a path leaving a start below trajectory.min_wrench_capacity may not dip below the start's
+#: capacity by more than this share (the samples' rounding; :func:`check_capacity`)
+START_CAPACITY_REL_TOL = 1e-9
+
 
 @dataclass(frozen=True)
 class Limits:
@@ -265,6 +269,12 @@ def check_capacity(mech: 'Mechanism', trajectory: Trajectory, limits: Limits, *,
     ``limits.min_wrench_capacity``: ``(check, minima)``; ``minima`` is ``None`` when the
     mechanism has no capacity model or nothing is checked.
 
+    A path that starts short of the minimum (a capacity stop leaves the ring at the boundary)
+    may leave it: samples below the minimum are allowed on an axis only in the stretch from
+    the start up to where the capacity first reaches the minimum, and only while it stays at
+    or above its value at the start (the path never makes it worse). Otherwise the brace
+    would be stuck there: every path from the boundary starts below it.
+
     A violation names the axis, the capacity, the pose, the time and the limiting actuator.
     """
     batch = getattr(mech, 'wrench_capacity_batch', None)
@@ -282,6 +292,12 @@ def check_capacity(mech: 'Mechanism', trajectory: Trajectory, limits: Limits, *,
     axes = tuple(getattr(mech, 'wrench_axes', ())) or tuple(f'#{j}' for j in range(caps.shape[1]))
     need = np.broadcast_to(need, (caps.shape[1],)) if need.size in (1, caps.shape[1]) else need[:caps.shape[1]]
     short = caps < need[None, :]
+    for j in np.flatnonzero(short[0]):
+        # leaving a short start: the leading stretch below the minimum, never below the start
+        reached = np.flatnonzero(~short[:, j])
+        if reached.size:
+            lead = slice(0, int(reached[0]))
+            short[lead, j] &= caps[lead, j] < caps[0, j] * (1.0 - START_CAPACITY_REL_TOL)
     if not np.any(short):
         return PathCheck(), minima
     i, j = np.argwhere(short)[0]

@@ -25,7 +25,9 @@ the pose the command holds. After the driver re-anchors (enable) or stops a moti
 (cancel, halt, fault), the hold is the forward kinematics of the positions the driver
 reports, so the next motion starts exactly where the drives are commanded. While a
 cancelled motion is still braking the model is unknown (:attr:`settled` is False) and no
-new motion is planned from it.
+new motion is planned from it. The same holds while the driver's in-cycle admittance
+(interaction) moves the command: a goal then waits until the mode has ended at rest and the
+driver reported where (:meth:`on_interaction`); the node ends the mode for it.
 
 Time is whatever monotonic clock the caller passes (s). Not thread-safe: the node
 serialises calls (its lock); :meth:`plan` needs no lock.
@@ -158,6 +160,9 @@ class TrajectoryRunner:
         self.report_timeout = float(report_timeout)
         self._motion: _Motion | None = None
         self._hold: np.ndarray | None = None
+        #: the driver's in-cycle admittance moves the command (its 'started' event): the
+        #: model is unknown until it ends at rest ('stopped' / 'aborted' with the positions)
+        self.interacting = False
         self._stopping: int | None = None        # tag of a motion braking after a cancel
         self._goal: _Goal | None = None
         self.driver_enabled = False
@@ -190,7 +195,7 @@ class TrajectoryRunner:
         The handed-out motion when one runs then, else the hold; before the driver said
         where the command is, the ``measured`` pose (fresh estimate), else home.
         """
-        if self._stopping is not None:
+        if self._stopping is not None or self.interacting:
             return None
         t0 = now + self.lookahead
         m = self._motion
@@ -289,6 +294,7 @@ class TrajectoryRunner:
                 events += self.abort_all(f'the drives stopped: {reason}')
             self._motion = None
             self._stopping = None
+            self.interacting = False
         if enabled and command is not None and (not executing or not was) and self._goal is None:
             pose = self._forward(command)
             if pose is not None:
@@ -330,6 +336,21 @@ class TrajectoryRunner:
                 what = 'the driver stopped its motion' if kind == 'stopped' else 'its motion was rejected'
                 events.append(GoalEvent(goal.goal_id, GoalState.ABORTED, f'{what}: {reason}'))
         return events
+
+    def on_interaction(self, kind: str, positions: np.ndarray | None) -> None:
+        """An event of the driver's in-cycle admittance (docs/interaction.md): 'started' makes
+        the model unknown (:meth:`start_state` is None: a goal waits, and the node ends the
+        mode); 'stopped' / 'aborted' (at rest) re-anchor the hold at FK of the reported
+        command; 'preempted' (a motion took over, which its own events describe) ends it."""
+        if kind == 'started':
+            self.interacting = True
+        elif kind in ('stopped', 'aborted', 'preempted'):
+            self.interacting = False
+            if kind != 'preempted' and positions is not None and len(positions):
+                pose = self._forward(positions)
+                if pose is not None:
+                    self._hold = pose
+                    self._motion = None
 
     def on_estimate(self, pose: np.ndarray, *, stamp: float, now: float) -> list[GoalEvent]:
         """The estimated platform pose at ``stamp`` (runner clock): a finished goal succeeds

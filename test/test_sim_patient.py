@@ -1,0 +1,146 @@
+"""The simulated patient: a trunk that sways by itself, moves on request and has limited effort.
+
+Oracles written here from the model's definition (docs/interaction.md, "The simulated
+patient"): the trunk's wanted pose ``rest(t) = rest + A sin(2 pi f t + phi)``; the tissue
+``W_body = -K (pose - rest(t)) - D (pose_dot - rest_dot(t))`` with K, D read from the YAML
+by this test; the patient's effort ``K (rest - pose)`` saturated per axis at
+``sim.patient_max_wrench``. The brace's drives hold their power-up lengths (no master:
+the SYNC handler is called directly, ``dt`` = 2 ms), so the ring stays (within the legs'
+compliance) at the home pose while the trunk moves.
+"""
+from __future__ import annotations
+
+import copy
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from brace_control.config import ConfigError, DeviceConfig, load_device_config
+from brace_control.sim import SimulatedBrace
+
+ROOT = Path(__file__).resolve().parent.parent
+CFG = ROOT / 'config' / 'lumbar_brace.yaml'
+DT = 0.002
+
+
+def lumbar(**sim: object) -> tuple[SimulatedBrace, dict]:
+    params = copy.deepcopy(dict(load_device_config(CFG)))
+    params['sim'].update(sim)
+    params['sim']['load_cell_noise'] = 0.0
+    brace = SimulatedBrace(DeviceConfig(params, CFG.resolve()), channel='unused', start=False)
+    return brace, params
+
+
+def run(brace: SimulatedBrace, n: int) -> None:
+    for _ in range(n):
+        brace.host.sync_handler(DT)
+
+
+def test_sway_moves_the_trunk_and_a_held_ring_feels_the_tissue() -> None:
+    amp = [0.0, 0.010, math.radians(5.0)]
+    f_hz = 0.5
+    brace, params = lumbar(sway_amplitude=amp, sway_frequency_hz=f_hz, sway_phase=[0.0, 0.0, 1.0])
+    K = np.reshape(params['sim']['stiffness'], (3, 3))
+    D = np.reshape(params['sim']['damping'], (3, 3))
+    rest0 = np.asarray(params['sim']['rest_pose'])
+    w = 2 * math.pi * f_hz
+    peak = np.zeros(3)
+    for k in range(1, 401):                       # 0.8 s: past the first peak of both axes
+        run(brace, 1)
+        tr = brace.truth()
+        t = k * DT
+        assert tr.time == pytest.approx(t)
+        phase = w * t + np.array([0.0, 0.0, 1.0])
+        body = rest0 + np.array(amp) * np.sin(phase)
+        body_dot = np.array(amp) * w * np.cos(phase)
+        np.testing.assert_allclose(tr.body_pose, body, atol=1e-12)
+        np.testing.assert_allclose(tr.body_rate, body_dot, atol=1e-12)
+        expected = -K @ (tr.pose - body) - D @ (tr.pose_dot - body_dot)
+        np.testing.assert_allclose(tr.body_wrench, expected, rtol=1e-3, atol=1e-3)
+        # quasi-static: the brace holds the ring against it
+        np.testing.assert_allclose(tr.brace_wrench, -tr.body_wrench, atol=1e-3)
+        # the legs hold the ring (laterally soft: the legs are nearly parallel, ARCHITECTURE.md)
+        assert np.all(np.abs(tr.pose - rest0) < [1e-3, 1e-4, 1e-3])
+        peak = np.maximum(peak, np.abs(tr.body_wrench))
+    # the held ring feels the whole sway: K_y 10 mm = 40 N, K_theta 5 deg = 3.5 N·m
+    assert peak[1] > 0.95 * K[1, 1] * amp[1]
+    assert peak[2] > 0.95 * K[2, 2] * amp[2]
+
+
+def test_no_sway_by_default_and_the_rest_pose_moves_on_request() -> None:
+    brace, params = lumbar()
+    K = np.reshape(params['sim']['stiffness'], (3, 3))
+    run(brace, 5)
+    tr = brace.truth()
+    np.testing.assert_allclose(tr.body_pose, params['sim']['rest_pose'])
+    np.testing.assert_allclose(tr.body_rate, 0.0)
+    assert np.max(np.abs(tr.body_wrench)) < 1e-3
+    target = np.asarray(params['sim']['rest_pose']) + [0.0, 0.004, 0.01]
+    brace.set_rest_pose(target)
+    run(brace, 250)                               # 0.5 s: the lateral mode (D_x / K_x) settles
+    tr = brace.truth()
+    np.testing.assert_allclose(tr.body_pose, target)
+    np.testing.assert_allclose(tr.body_wrench, K @ (target - tr.pose), rtol=1e-3, atol=1e-3)
+
+
+def test_the_patient_effort_saturates_at_patient_max_wrench() -> None:
+    limit = [0.0, 60.0, 1.0]                      # x unlimited, 60 N vertical, 1 N·m
+    brace, params = lumbar(patient_max_wrench=limit)
+    K = np.reshape(params['sim']['stiffness'], (3, 3))
+    rest = np.asarray(params['sim']['rest_pose'])
+    brace.set_rest_pose(rest + [0.002, 0.05, 0.05])     # the patient wants 5 cm up, 2.9 deg
+    run(brace, 250)
+    tr = brace.truth()
+    free = K @ (brace.rest_pose - tr.pose)                # what an unlimited patient would do
+    assert free[1] > 190.0 and free[2] > 1.9              # 200 N, 2 N·m wanted
+    assert tr.body_wrench[1] == pytest.approx(60.0, abs=1e-3)
+    assert tr.body_wrench[2] == pytest.approx(1.0, abs=1e-3)
+    assert tr.body_wrench[0] == pytest.approx(free[0], rel=1e-3, abs=1e-3)   # unlimited axis
+    # pushed the other way, the patient yields at the same effort
+    brace.set_rest_pose(rest - [0.0, 0.05, 0.05])
+    run(brace, 250)
+    tr = brace.truth()
+    assert tr.body_wrench[1] == pytest.approx(-60.0, abs=1e-3)
+    assert tr.body_wrench[2] == pytest.approx(-1.0, abs=1e-3)
+
+
+def test_a_rigid_device_feels_the_sway_and_the_effort_limit() -> None:
+    cfg = ROOT / 'config' / 'shoulder.yaml'
+    params = copy.deepcopy(dict(load_device_config(cfg)))
+    dof = 3
+    K = np.reshape(params['sim']['stiffness'], (dof, dof))
+    params['sim'].update(sway_amplitude=[0.0, 0.0, 0.1], sway_frequency_hz=0.25,
+                         patient_max_wrench=[0.0, 0.0, 0.5 * K[2, 2] * 0.1])
+    params['sim']['load_cell_noise'] = 0.0
+    brace = SimulatedBrace(DeviceConfig(params, cfg.resolve()), channel='unused', start=False)
+    run(brace, 500)                              # 1 s: sin(pi/2) = 1, the trunk at +0.1 rad
+    tr = brace.truth()
+    assert tr.body_pose[2] - np.asarray(params['sim']['rest_pose'])[2] == pytest.approx(0.1, rel=1e-6)
+    assert tr.body_wrench[2] == pytest.approx(0.5 * K[2, 2] * 0.1, rel=1e-6)
+
+
+@pytest.mark.parametrize('key, value, words', [
+    ('sway_amplitude', [0.0, 0.01], r'sim\.sway_amplitude: expected 3 finite numbers'),
+    ('sway_amplitude', [0.0, float('nan'), 0.0], r"sim\.sway_amplitude.*non-finite"),
+    ('sway_frequency_hz', -0.2, r'sim\.sway_frequency_hz'),
+    ('patient_max_wrench', [10.0, -1.0, 1.0], r"sim\.patient_max_wrench.*out of range"),
+])
+def test_bad_patient_parameters_are_config_errors(key: str, value: object, words: str) -> None:
+    with pytest.raises(ConfigError, match=words):
+        lumbar(**{key: value})
+
+
+def test_set_sway_starts_the_sine_now() -> None:
+    brace, params = lumbar()
+    run(brace, 100)                               # 0.2 s without sway
+    brace.set_sway([0.0, 0.004, 0.0], 1.0)
+    rest = np.asarray(params['sim']['rest_pose'])
+    for k in range(1, 101):
+        run(brace, 1)
+        tr = brace.truth()
+        expected = rest[1] + 0.004 * math.sin(2 * math.pi * k * DT)
+        assert tr.body_pose[1] == pytest.approx(expected, abs=1e-12)
+    with pytest.raises(ValueError, match='3 finite amplitudes'):
+        brace.set_sway([0.0, 0.01], 1.0)
