@@ -311,6 +311,13 @@ def test_v2_is_the_paper_brace_but_for_the_mechanism():
     mech_v2, mech_paper = v2.pop('mechanism'), paper.pop('mechanism')
     assert v2.pop('sim')['rest_pose'] == mech_v2['home_pose']
     paper.pop('sim')
+    # interaction: v2 force-controls x too (it holds >= 261 N sideways; the paper's 0.71 N cannot)
+    inter_v2, inter_paper = v2.pop('interaction'), paper.pop('interaction')
+    assert inter_v2['force_axes'] == [True, True, True] and inter_paper['force_axes'] == [False, True, True]
+    assert inter_v2['max_goal_wrench'][1:] == inter_paper['max_goal_wrench'][1:]
+    lateral = ('force_axes', 'max_goal_wrench')
+    assert {k: v for k, v in inter_v2.items() if k not in lateral} == \
+        {k: v for k, v in inter_paper.items() if k not in lateral}
     assert v2 == paper                                          # actuators, CAN, safety, trajectory, ...
     assert load_device_config(V2)['sim'] == {**load_device_config('lumbar_brace')['sim'],
                                              'rest_pose': mech_v2['home_pose']}

@@ -85,6 +85,49 @@ def test_no_sway_by_default_and_the_rest_pose_moves_on_request() -> None:
     np.testing.assert_allclose(tr.body_wrench, K @ (target - tr.pose), rtol=1e-3, atol=1e-3)
 
 
+def test_a_streamed_rest_pose_is_a_moving_trunk_not_a_staircase() -> None:
+    """/brace/sim/body_rest at 50 Hz along a line at 30 mm/s: after two samples the trunk
+    moves at that rate between samples (no 20 ms steps), one interval behind the samples,
+    and the held ring feels the tissue on that motion: ``-K (pose - rest(t)) - D (pose_dot -
+    v)`` with ``rest(t)`` the line, 20 ms late. A jump within the stream is a ramp over one
+    interval, never beyond the sample."""
+    brace, params = lumbar()
+    K = np.reshape(params['sim']['stiffness'], (3, 3))
+    D = np.reshape(params['sim']['damping'], (3, 3))
+    rest0 = np.asarray(params['sim']['rest_pose'])
+    v = np.array([0.0, 0.030, 0.0])
+    run(brace, 5)
+    t_set = brace.truth().time
+    for k in range(25):                           # 0.5 s: a sample every 10 SYNCs
+        brace.set_rest_pose(rest0 + v * (brace.truth().time - t_set))
+        for _ in range(10):
+            run(brace, 1)
+            tr = brace.truth()
+            if k < 2:                             # the first two samples: a step, then the rate
+                continue
+            line = rest0 + v * (tr.time - t_set - 0.02)
+            np.testing.assert_allclose(tr.body_pose, line, atol=1e-9)
+            np.testing.assert_allclose(tr.body_rate, v, atol=1e-9)
+            expected = -K @ (tr.pose - line) - D @ (tr.pose_dot - v)
+            np.testing.assert_allclose(tr.body_wrench, expected, rtol=1e-3, atol=1e-3)
+    # the stream ends: the trunk stops at the last sample (0.48 s along the line)
+    run(brace, 30)
+    tr = brace.truth()
+    np.testing.assert_allclose(tr.body_pose, rest0 + v * 0.48, atol=1e-9)
+    np.testing.assert_allclose(tr.body_rate, 0.0)
+    # a jump of 10 mm within the stream: a ramp over the interval, ending at the sample
+    brace.set_rest_pose(rest0 + v * 0.48)
+    run(brace, 10)
+    jump = rest0 + v * 0.48 + [0.0, 0.010, 0.0]
+    brace.set_rest_pose(jump)
+    poses = []
+    for _ in range(15):
+        run(brace, 1)
+        poses.append(brace.truth().body_pose[1])
+    assert max(poses) <= jump[1] + 1e-12 and poses[-1] == pytest.approx(jump[1], abs=1e-12)
+    assert np.all(np.diff(poses) <= 0.010 / 10 + 1e-12)          # 1 mm per SYNC at most
+
+
 def test_the_patient_effort_saturates_at_patient_max_wrench() -> None:
     limit = [0.0, 60.0, 1.0]                      # x unlimited, 60 N vertical, 1 N·m
     brace, params = lumbar(patient_max_wrench=limit)

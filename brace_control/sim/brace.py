@@ -51,7 +51,12 @@ The patient (the body's own motion and effort, docs/interaction.md):
   (``sim.rest_pose``, or the last ``/brace/sim/body_rest`` via :meth:`SimulatedBrace.
   set_rest_pose`) plus a scripted sway ``sim.sway_amplitude[i] sin(2 pi
   sim.sway_frequency_hz t + sim.sway_phase[i])`` per pose axis (m or rad; all zero, the
-  default: no sway), ``t`` the simulated time since power-up;
+  default: no sway), ``t`` the simulated time since power-up. A stream of rest poses (one
+  every :data:`REST_STREAM_GAP_S` or sooner) is a moving trunk: from each sample the trunk
+  goes on to the next at constant rate over the interval between them (a first-order hold,
+  one interval late; it never overshoots a sample), so a trunk streamed at 50 Hz moves
+  smoothly, with its rate in the tissue damping, not in 20 ms steps; a rest pose after a
+  longer silence is a step;
 * the tissue between ring and trunk is the spring ``K`` and the damper ``D`` on the
   *relative* motion (pose - rest, pose_dot - rest_dot): a ring that moves with the trunk
   carries no load;
@@ -98,6 +103,9 @@ __all__ = ['SimulatedBrace', 'BraceTruth']
 NOISE_BLOCK = 500
 #: SYNCs of ground truth kept for :meth:`SimulatedBrace.truth_at`
 TRUTH_HISTORY = 64
+#: s: rest poses closer than this are samples of one motion of the trunk (its rate is
+#: their difference over the interval); farther apart, each is a step
+REST_STREAM_GAP_S = 0.2
 
 
 @dataclass(frozen=True)
@@ -212,6 +220,12 @@ class SimulatedBrace:
         self.stiffness = _matrix(sim.get('stiffness', [0.0] * dof * dof), dof, 'sim.stiffness')
         self.damping = _matrix(sim.get('damping', [0.0] * dof * dof), dof, 'sim.damping')
         self.rest_pose = np.asarray(sim.get('rest_pose', self.mechanism.home_pose), dtype=float)
+        # a streamed rest pose (set_rest_pose): the trunk goes from _rest_from at _rest_time
+        # at _rest_rate for _rest_hold s, to rest_pose
+        self._rest_from = self.rest_pose.copy()
+        self._rest_rate = np.zeros(dof)
+        self._rest_time = -math.inf
+        self._rest_hold = 0.0
         self._init_patient(sim)
         self._body = self.body_at(0.0)
         self.noise_n = float(sim['load_cell_noise'])
@@ -334,7 +348,17 @@ class SimulatedBrace:
         if arr.shape != (self.dof,) or not np.all(np.isfinite(arr)):
             raise ValueError(f'body rest pose: expected {self.dof} finite numbers, got {pose!r}')
         with self.lock:
+            now = self._time
+            gap = now - self._rest_time
+            if 0.0 < gap <= REST_STREAM_GAP_S:    # the next sample of a moving trunk
+                start = self._streamed_rest(now)[0]
+                self._rest_from, self._rest_hold = start, gap
+                self._rest_rate = (arr - start) / gap
+            else:                                  # a step (or two samples in one SYNC)
+                self._rest_from, self._rest_hold = arr.copy(), 0.0
+                self._rest_rate = np.zeros(self.dof)
             self.rest_pose = arr.copy()
+            self._rest_time = now
             self._static = None            # the held state is no longer in equilibrium
 
     def _init_patient(self, sim: Mapping[str, Any]) -> None:
@@ -394,15 +418,24 @@ class SimulatedBrace:
             self._swaying = bool(np.any(a != 0.0)) and frequency_hz > 0.0
             self._static = None
 
+    def _streamed_rest(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """The base rest pose at simulated time ``t`` and its rate: on its way from the
+        previous sample to the last one (module docstring), else the last one."""
+        ahead = t - self._rest_time
+        if self._rest_hold > 0.0 and 0.0 <= ahead <= self._rest_hold + 1e-9:   # on the way (or just
+            return self._rest_from + self._rest_rate * ahead, self._rest_rate.copy()  # arrived)
+        return self.rest_pose.copy(), np.zeros(self.dof)
+
     def body_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Where the patient's trunk wants to be at simulated time ``t`` (s) and its rate:
         ``rest + A sin(w t + phi)``, ``A w cos(w t + phi)``, ``w = 2 pi sim.sway_frequency_hz``."""
+        rest, rest_dot = self._streamed_rest(t)
         if not self._swaying:
-            return self.rest_pose.copy(), np.zeros(self.dof)
+            return rest, rest_dot
         w = 2.0 * math.pi * self.sway_frequency_hz
         arg = w * t + self.sway_phase
-        return (self.rest_pose + self.sway_amplitude * np.sin(arg),
-                self.sway_amplitude * w * np.cos(arg))
+        return (rest + self.sway_amplitude * np.sin(arg),
+                rest_dot + self.sway_amplitude * w * np.cos(arg))
 
     def _spring(self, pose: np.ndarray, rest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The patient's spring ``-K (pose - rest)``, each pose axis saturated at
@@ -668,8 +701,8 @@ class SimulatedBrace:
         moving_q = any(v != 0.0 for v in rates)              # as np.any: NaN counts as moving
         # the patient's trunk at the end of this step (a swaying trunk is never at rest)
         self._body = self.body_at(self._time + dt)
-        if self._swaying:
-            self._static = None
+        if self._swaying or self._time - self._rest_time < self._rest_hold + dt:
+            self._static = None           # the trunk moves (streamed rest poses): no held state
         self._elapsed += dt
         static = self._static
         if static is not None and dt > 0 and not moving_q \
