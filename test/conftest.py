@@ -26,3 +26,22 @@ def ros():
         yield r
     finally:
         r.close()
+
+
+@pytest.fixture(scope='session', autouse=True)
+def _rcl_logging_stays_up():
+    """One rclpy context open for the whole session, never shut down by a test.
+
+    rcl's logging is shared by every context of a process and torn down when the last one
+    shuts down (``rcl_logging_fini``: it destroys the ``/rosout`` publishers). Tests that
+    each init and shut down their own context tear it down and set it up again many times;
+    once in a full run that teardown deadlocked inside Fast DDS (``PDP::removeWriterProxyData``
+    waiting on a mutex while delivering the writer's removal to another participant of this
+    process, seen with py-spy). With this context open the count never reaches zero during
+    the run; the process exit takes it down.
+    """
+    import rclpy
+    from rclpy.context import Context
+    keep = Context()
+    rclpy.init(context=keep)
+    yield keep

@@ -54,6 +54,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
+from rclpy.duration import Duration
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import MultiDOFJointTrajectory
@@ -79,6 +80,8 @@ PLAN_LOOKAHEAD_S = 0.15
 STOPPING_WAIT_S = 3.0
 #: Hz of the timeout checks while a goal is active (none while idle)
 CHECK_RATE_HZ = 20.0
+#: s the node waits at shutdown until its last goal statuses are acknowledged
+SHUTDOWN_ACK_S = 1.0
 
 _LEVEL = {GoalState.ACCEPTED: OK, GoalState.SUCCEEDED: OK, GoalState.REJECTED: WARN,
           GoalState.CANCELLED: WARN, GoalState.ABORTED: ERROR}
@@ -445,6 +448,9 @@ class TrajectoryNode(Node):
                       GoalEvent(pending[0].goal_id, GoalState.ABORTED,
                                 'shutdown: the trajectory node stopped')] + events
         self._report(events)
+        if events:
+            # the last words reach the subscribers before the process goes (reliable: acked)
+            self._status_pub.wait_for_all_acked(Duration(seconds=SHUTDOWN_ACK_S))
         if self._planner.is_alive() and self._planner is not threading.current_thread():
             self._planner.join(timeout=2.0)
 
