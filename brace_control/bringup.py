@@ -168,8 +168,10 @@ def wait_for_links(node: Any, *, timeout: float = 20.0, nodes: Sequence[str] = N
 def wait_until_ready(node: Any, *, timeout: float = 20.0, driver: str | None = 'enabled',
                      nodes: Sequence[str] = ('trajectory_node', 'ik_node')) -> None:
     """Wait until each of ``nodes`` reports on ``/diagnostics`` that its trajectory output
-    has a subscriber (``subscribers <topic>`` >= 1, by that node's own discovery), and the
-    trajectory node that the driver's state is ``driver`` (``None``: any).
+    has a subscriber (``subscribers <topic>`` >= 1, by that node's own discovery), the
+    trajectory node that it hears the execution reports of the ik node and the driver
+    (``publishers /brace/execution_status``), and that the driver's state is ``driver``
+    (``None``: any; then only the ik node's reports are required).
 
     :func:`wait_for_links` sees the graph from ``node``'s side; a node process matches the
     others in its own discovery, maybe later: a goal planned before the IK node matched is
@@ -197,6 +199,11 @@ def wait_until_ready(node: Any, *, timeout: float = 20.0, driver: str | None = '
                     return False
                 counts = [v for k, v in values.items() if k.startswith('subscribers ')]
                 if not counts or any(not v.isdigit() or int(v) < 1 for v in counts):
+                    return False
+            if 'trajectory_node' in nodes:
+                # the execution reports: the ik node's, and the driver's when one is expected
+                reports = seen['trajectory_node'].get(f'publishers {topics.EXECUTION_STATUS}', '0')
+                if not reports.isdigit() or int(reports) < (1 if driver is None else 2):
                     return False
             if driver is not None and 'trajectory_node' in nodes:
                 return seen['trajectory_node'].get('driver', '').startswith(driver)

@@ -512,7 +512,7 @@ def process_bring_up(device_file, extra_args):
         executor.shutdown()
         node.destroy_node()
         rclpy.shutdown(context=ctx)
-    assert all(c == 0 for c in codes.values()), codes
+    assert all(c == 0 for c in codes.values()), {n: c for n, c in codes.items() if c != 0}
 
 
 @pytest.fixture

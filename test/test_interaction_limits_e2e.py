@@ -237,6 +237,7 @@ class Patient:
 
     def __init__(self, b: BringUp) -> None:
         self.sim = b.node('can_driver_node').sim
+        self.node = b.helper
         self.pub = b.helper.create_publisher(PoseStamped, topics.SIM_BODY_REST, topics.STATE_QOS)
         self.goal_pub = b.helper.create_publisher(PoseStamped, topics.POSE_GOAL, topics.GOAL_QOS)
         self.rest = np.array(self.sim.rest_pose, dtype=float)
@@ -248,7 +249,8 @@ class Patient:
 
     def place(self, pose) -> None:
         self.rest = np.asarray(pose, dtype=float)
-        self.pub.publish(pose_msg(self.rest, frame_id='brace_base', mechanism=None))
+        self.pub.publish(pose_msg(self.rest, frame_id='brace_base', mechanism=None,
+                                  stamp=self.node.get_clock().now().to_msg()))
 
     def move(self, goal, duration: float) -> None:
         """Rest pose to ``goal`` in ``duration`` s (minimum jerk, 50 Hz)."""

@@ -339,7 +339,7 @@ def operator_stack(device_file: Path, extra_args: Sequence[str] = ()) -> Iterato
         executor.shutdown()
         node.destroy_node()
         rclpy.shutdown(context=ctx)
-    assert all(c == 0 for c in codes.values()), codes
+    assert all(c == 0 for c in codes.values()), {n: c for n, c in codes.items() if c != 0}
 
 
 @pytest.fixture
@@ -633,7 +633,7 @@ def test_shutdown_with_a_running_goal_aborts_it_without_a_traceback(device_file,
         gid = op.goal(target)
         op.wait_travel(start, target, 0.3)
         codes = op.group.stop()
-        assert all(c == 0 for c in codes.values()), codes
+        assert all(c == 0 for c in codes.values()), {n: c for n, c in codes.items() if c != 0}
         end = op.end(gid, timeout=5)
         assert end['state'] == 'aborted', end
         assert 'shutdown' in end['reason'] or 'stopped' in end['reason'], end

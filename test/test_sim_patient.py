@@ -187,3 +187,26 @@ def test_set_sway_starts_the_sine_now() -> None:
         assert tr.body_pose[1] == pytest.approx(expected, abs=1e-12)
     with pytest.raises(ValueError, match='3 finite amplitudes'):
         brace.set_sway([0.0, 0.01], 1.0)
+
+
+def test_a_streamed_rest_pose_takes_its_rate_from_the_stamps_not_the_arrivals() -> None:
+    """Samples 20 ms apart by their stamps that arrive bunched (two in one 4 ms window, as a
+    DDS hop may deliver them): the trunk moves at the stamps' rate, 30 mm/s, not 4x it."""
+    brace, params = lumbar()
+    rest0 = np.asarray(params['sim']['rest_pose'])
+    v = np.array([0.0, 0.030, 0.0])
+    run(brace, 5)
+    brace.set_rest_pose(rest0, stamp=100.0)
+    run(brace, 10)
+    brace.set_rest_pose(rest0 + v * 0.02, stamp=100.02)
+    run(brace, 8)                                 # the next arrives 16 ms later ...
+    brace.set_rest_pose(rest0 + v * 0.04, stamp=100.04)
+    run(brace, 2)
+    # from where the trunk is (4 ms short of the last sample) to the new one in 20 ms: 1.2 v
+    np.testing.assert_allclose(brace.truth().body_rate, 1.2 * v, atol=1e-9)
+    brace.set_rest_pose(rest0 + v * 0.06, stamp=100.06)   # ... and this one 4 ms after it
+    run(brace, 1)
+    rate = brace.truth().body_rate[1]
+    # the trunk catches up the samples it is behind over one stamped interval (~2 v); by
+    # arrival it would be 0.02 m over 4 ms: >= 5 v
+    assert 0.8 * v[1] < rate < 2.5 * v[1], rate

@@ -523,7 +523,8 @@ class CanDriverNode(LifecycleNode):
             return
         try:
             pose = pose_from_msg(msg, frame_id=self.cfg['base_frame'], mechanism=self.mechanism)
-            sim.set_rest_pose(pose)
+            stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+            sim.set_rest_pose(pose, stamp if stamp > 0.0 else None)
         except ValueError as exc:
             self.get_logger().warning(f'body rest pose ignored: {exc}', throttle_duration_sec=1.0)
 

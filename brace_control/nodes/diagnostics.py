@@ -52,6 +52,7 @@ class NodeDiagnostics:
         self._min_interval = min_interval
         self._last_event = 0.0
         self._watched: list[Any] = []
+        self._watched_subs: list[Any] = []
         self._timer = node.create_timer(period, self.publish, callback_group=callback_group)
 
     def set(self, level: Any, message: str, **values: Any) -> None:
@@ -69,9 +70,19 @@ class NodeDiagnostics:
         """Report ``subscribers <topic>`` (matched subscriptions) of ``publisher``."""
         self._watched.append(publisher)
 
+    def watch_subscription(self, subscription: Any) -> None:
+        """Report ``publishers <topic>`` of ``subscription``: matched publishers where rclpy
+        has ``Subscription.get_publisher_count`` (Iron and later), else the publishers the
+        graph knows (Humble)."""
+        self._watched_subs.append(subscription)
+
     def status(self) -> DiagnosticStatus:
         for pub in self._watched:
             self.values[f'subscribers {pub.topic_name}'] = pub.get_subscription_count()
+        for sub in self._watched_subs:
+            count = getattr(sub, 'get_publisher_count', None)
+            self.values[f'publishers {sub.topic_name}'] = (
+                count() if count is not None else self._node.count_publishers(sub.topic_name))
         return DiagnosticStatus(
             level=self.level, name=self.name, message=self.message,
             hardware_id=self.hardware_id,

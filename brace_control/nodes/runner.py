@@ -31,6 +31,8 @@ __all__ = ['run_node', 'usage', 'make_executor', 'freeze_start_up_heap', 'EXIT_S
 
 EXIT_STARTUP = 1
 EXIT_CONFIG = 2
+#: s run_node waits at exit for callbacks still running
+EXECUTOR_SHUTDOWN_S = 2.0
 
 
 def make_executor(context: object = None) -> Executor:
@@ -136,7 +138,9 @@ def run_node(factory: Callable[[], Node], *, executable: str, summary: str,
         shutdown = getattr(node, 'shutdown', None)
         if callable(shutdown):
             shutdown()
-        spinner.shutdown()
+        # a callback still awaiting a peer that is gone (a service call to a node already
+        # stopped) must not hold the exit: wait a bounded time for the running callbacks
+        spinner.shutdown(timeout_sec=EXECUTOR_SHUTDOWN_S)
         node.destroy_node()
         rclpy.try_shutdown()
     return code

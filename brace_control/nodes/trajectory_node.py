@@ -139,7 +139,7 @@ class TrajectoryNode(Node):
         self.create_subscription(PoseStamped, topics.POSE_GOAL, self._on_goal, topics.GOAL_QOS)
         self.create_subscription(Path, topics.POSE_PATH, self._on_path, topics.GOAL_QOS)
         self.create_subscription(PoseStamped, topics.POSE, self._on_estimate, topics.MEASURED_QOS)
-        self.create_subscription(DiagnosticStatus, topics.EXECUTION_STATUS, self._on_execution,
+        self._exec_sub = self.create_subscription(DiagnosticStatus, topics.EXECUTION_STATUS, self._on_execution,
                                  topics.STATUS_QOS)
         self.create_subscription(DiagnosticStatus, topics.DRIVER_STATE, self._on_driver_state,
                                  topics.LATCHED_QOS)
@@ -151,6 +151,9 @@ class TrajectoryNode(Node):
         self._planner.start()
         self.diagnostics = NodeDiagnostics(self, f'brace_control/{node_name}')
         self.diagnostics.watch(self._traj_pub)
+        # the driver's and the ik node's reports: a 'started' missed while unmatched is a goal
+        # aborted as "did not start" (bringup.wait_until_ready waits for both)
+        self.diagnostics.watch_subscription(self._exec_sub)
         self.diagnostics.set(OK, 'idle: waiting for a goal', profile=self.profile.value)
         self.get_logger().info(
             f'{type(self.mechanism).__name__}, profile {self.profile.value}: '

@@ -225,6 +225,7 @@ class SimulatedBrace:
         self._rest_from = self.rest_pose.copy()
         self._rest_rate = np.zeros(dof)
         self._rest_time = -math.inf
+        self._rest_stamp: float | None = None
         self._rest_hold = 0.0
         self._init_patient(sim)
         self._body = self.body_at(0.0)
@@ -338,10 +339,13 @@ class SimulatedBrace:
             history = tuple(self._history) or (self._truth,)
         return min(history, key=lambda t: abs(t.stamp - stamp))
 
-    def set_rest_pose(self, pose: np.ndarray) -> None:
+    def set_rest_pose(self, pose: np.ndarray, stamp: float | None = None) -> None:
         """Move the body's rest pose (the patient moves): the next SYNC's physics pulls the
         platform towards it. Thread safe.
 
+        :param stamp: when the sample was taken (s, any clock; a message's header stamp):
+            the interval to the previous sample is taken from the stamps, not from the
+            arrival (which a DDS hop bunches); ``None``: from the simulated time of arrival.
         :raises ValueError: not ``dof`` finite numbers.
         """
         arr = np.asarray(pose, dtype=float)
@@ -350,6 +354,9 @@ class SimulatedBrace:
         with self.lock:
             now = self._time
             gap = now - self._rest_time
+            if stamp is not None and self._rest_stamp is not None and 0.0 < gap <= REST_STREAM_GAP_S:
+                gap = stamp - self._rest_stamp     # the trunk's own timing
+            self._rest_stamp = stamp
             if 0.0 < gap <= REST_STREAM_GAP_S:    # the next sample of a moving trunk
                 start = self._streamed_rest(now)[0]
                 self._rest_from, self._rest_hold = start, gap
