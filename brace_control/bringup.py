@@ -168,7 +168,8 @@ def wait_for_links(node: Any, *, timeout: float = 20.0, nodes: Sequence[str] = N
 def wait_until_ready(node: Any, *, timeout: float = 20.0, driver: str | None = 'enabled',
                      nodes: Sequence[str] = ('trajectory_node', 'ik_node')) -> None:
     """Wait until each of ``nodes`` reports on ``/diagnostics`` that its trajectory output
-    has a subscriber (``subscribers <topic>`` >= 1, by that node's own discovery), the
+    has a subscriber besides ``node``'s own (``subscribers <topic>``, by that node's own
+    discovery), the
     trajectory node that it hears the execution reports of the ik node and the driver
     (``publishers /brace/execution_status``), and that the driver's state is ``driver``
     (``None``: any; then only the ik node's reports are required).
@@ -191,14 +192,20 @@ def wait_until_ready(node: Any, *, timeout: float = 20.0, driver: str | None = '
                 if name in nodes:
                     seen[name] = {kv.key: kv.value for kv in st.values}
 
+    def own(topic: str) -> int:
+        # ``node``'s own subscriptions count in the others' matches: a probe that records
+        # /brace/actuator_trajectory is not the driver
+        return sum(1 for s in node.subscriptions if s.topic_name == topic)
+
     def ready() -> bool:
         with lock:
             for name in nodes:
                 values = seen.get(name)
                 if values is None:
                     return False
-                counts = [v for k, v in values.items() if k.startswith('subscribers ')]
-                if not counts or any(not v.isdigit() or int(v) < 1 for v in counts):
+                counts = {k.split(' ', 1)[1]: v for k, v in values.items() if k.startswith('subscribers ')}
+                if not counts or any(not v.isdigit() or int(v) < 1 + own(topic)
+                                     for topic, v in counts.items()):
                     return False
             if 'trajectory_node' in nodes:
                 # the execution reports: the ik node's, and the driver's when one is expected
