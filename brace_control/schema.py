@@ -605,7 +605,8 @@ def validate(params: Mapping[str, Any], source: str | None = None) -> None:
     validate_flat(flatten(params), source)
 
 
-def _nest(cfg: dict[str, Any], dotted: str, value: Any) -> None:
+def nest(cfg: dict[str, Any], dotted: str, value: Any) -> None:
+    """Set ``cfg['a']['b']['c'] = value`` for ``dotted`` = ``'a.b.c'`` (creating the levels)."""
     keys = dotted.split('.')
     node = cfg
     for k in keys[:-1]:
@@ -643,11 +644,11 @@ def with_defaults(params: Mapping[str, Any], sections: Iterable[str] | None = No
             if _get(out, name) is not None:
                 continue
             if pass_ == 0 and spec.default is not None:
-                _nest(out, name, list(spec.default) if isinstance(spec.default, list) else spec.default)
+                nest(out, name, list(spec.default) if isinstance(spec.default, list) else spec.default)
             elif pass_ == 1 and spec.default_from is not None:
                 value = _get(out, spec.default_from)
                 if value is not None:
-                    _nest(out, name, value)
+                    nest(out, name, value)
     return out
 
 

@@ -25,6 +25,16 @@ LUMBAR_YAML = REPO / 'config' / 'lumbar_brace.yaml'
 RELIABLE_10 = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 
 
+def wait_until(predicate: Callable[[], bool], timeout: float, what: str) -> None:
+    """Poll ``predicate`` (every 20 ms) until true; AssertionError naming ``what`` after
+    ``timeout`` s (for tests whose nodes spin in threads of their own)."""
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise AssertionError(f'timed out waiting for {what}')
+        time.sleep(0.02)
+
+
 def params_args(path: str | Path = LUMBAR_YAML, **overrides: Any) -> list[str]:
     """``cli_args`` that give a node the device file, as ``ros2 run`` would."""
     args = ['--ros-args', '--params-file', str(path)]

@@ -24,10 +24,11 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from rclpy.context import Context
 
-from brace_control.bringup import BringUp, call_trigger
+from brace_control.bringup import BringUp
 from brace_control.demo import prepare_config
 from brace_control.nodes import topics
 from brace_control.nodes.msgs import pose_msg, status_values
+from ros_helpers import wait_until as wait
 
 ROOT = Path(__file__).resolve().parent.parent
 LUMBAR = ROOT / 'config' / 'lumbar_brace.yaml'
@@ -184,14 +185,6 @@ class Truth:
         with self.lock:
             seen = [(s.name, s.message, status_values(s).get('reason', '')) for s in self.status]
         raise AssertionError(f'no {what} within {timeout} s; statuses: {seen}')
-
-
-def wait(pred, timeout: float, what: str) -> None:
-    deadline = time.monotonic() + timeout
-    while not pred():
-        if time.monotonic() > deadline:
-            raise AssertionError(f'timed out waiting for {what}')
-        time.sleep(0.02)
 
 
 @pytest.fixture(scope='module')

@@ -44,6 +44,7 @@ from brace_control.bringup import BringUp
 from brace_control.demo import prepare_config
 from brace_control.nodes import topics
 from brace_control.nodes.msgs import pose_msg, status_values
+from ros_helpers import wait_until as wait
 
 ROOT = Path(__file__).resolve().parent.parent
 LUMBAR = ROOT / 'config' / 'lumbar_brace.yaml'
@@ -197,14 +198,6 @@ class Record:
     def driver_state(self) -> dict:
         with self.lock:
             return dict(self.driver[-1][2]) if self.driver else {}
-
-
-def wait(pred, timeout: float, what: str) -> None:
-    deadline = time.monotonic() + timeout
-    while not pred():
-        if time.monotonic() > deadline:
-            raise AssertionError(f'timed out waiting for {what}')
-        time.sleep(0.02)
 
 
 # ------------------------------------------------------------------------- fixture

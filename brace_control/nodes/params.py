@@ -28,7 +28,7 @@ from rclpy.exceptions import (InvalidParameterTypeException,
 from rclpy.node import Node
 
 from ..config import ConfigError, DeviceConfig
-from ..schema import ROS_BUILTIN_PREFIXES, SCHEMA, Param, param_type
+from ..schema import ROS_BUILTIN_PREFIXES, SCHEMA, Param, nest, param_type
 
 __all__ = ['Param', 'SCHEMA', 'declare_device_parameters', 'ConfigError', 'params_file_source']
 
@@ -73,14 +73,6 @@ def params_file_source(argv: Sequence[str] | None = None) -> str | None:
     return ', '.join(files) or None
 
 
-def _nest(cfg: dict[str, Any], dotted: str, value: Any) -> None:
-    keys = dotted.split('.')
-    node = cfg
-    for k in keys[:-1]:
-        node = node.setdefault(k, {})
-    node[keys[-1]] = value
-
-
 def declare_device_parameters(node: Node, sections: Iterable[str], *,
                               source: str | None = None) -> DeviceConfig:
     """Check the node's parameters against the schema, declare those of ``sections`` on
@@ -104,7 +96,7 @@ def declare_device_parameters(node: Node, sections: Iterable[str], *,
     device = {k: v for k, v in given.items() if not k.startswith(ROS_BUILTIN_PREFIXES)}
     nested: dict[str, Any] = {}
     for name, value in device.items():
-        _nest(nested, name, value)
+        nest(nested, name, value)
     full = DeviceConfig(nested, source=where)       # the schema check of the whole file
     cfg: dict[str, Any] = {}
 
@@ -127,7 +119,7 @@ def declare_device_parameters(node: Node, sections: Iterable[str], *,
         value = full.get_path(name, None)
         if value is None:            # optional, not given: absent, as in the pure API
             continue
-        _nest(cfg, name, declare(name, value, _descriptor(name, spec)))
+        nest(cfg, name, declare(name, value, _descriptor(name, spec)))
 
     if 'mechanism' in sections:
         mech_keys = sorted(k for k in given if k.startswith('mechanism.'))
@@ -136,7 +128,7 @@ def declare_device_parameters(node: Node, sections: Iterable[str], *,
                 'no mechanism.* parameters: start the node with the device file, '
                 '--ros-args --params-file config/<device>.yaml')
         for name in mech_keys:
-            _nest(cfg, name, declare(name, given[name], ParameterDescriptor(
+            nest(cfg, name, declare(name, given[name], ParameterDescriptor(
                 description='mechanism geometry (from the device file)', read_only=True)))
     out = DeviceConfig(cfg, source=where)
     for key in [k for k, v in out.items() if isinstance(v, dict) and k not in sections]:
