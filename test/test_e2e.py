@@ -281,36 +281,57 @@ def check_succeeded_goals_are_true(dev: Device, probe: Probe) -> int:
     return n
 
 
-def _planned(probe: Probe, names) -> np.ndarray:
-    """Dense samples of every planned actuator motion (quintic Hermite of its knots: scipy's
-    BPoly, independent of the driver's interpolation), concatenated."""
+def _planned(probe: Probe, names) -> list[tuple[int, np.ndarray]]:
+    """Every planned actuator motion as ``(start stamp ns, dense samples)``, in start order:
+    a quintic Hermite of its knots (scipy's BPoly, independent of the driver's
+    interpolation) every 2 ms."""
     from scipy.interpolate import BPoly
     with probe.lock:
         trajs = [t for t in probe.trajectories if len(t.points) > 1]
     out = []
     for t in trajs:
-        _, tk, q, qd, qdd = joint_knots_from_msg(t, names)
+        stamp, tk, q, qd, qdd = joint_knots_from_msg(t, names)
         spline = BPoly.from_derivatives(tk, np.stack([q, qd, qdd], axis=1))
-        out.append(spline(np.linspace(tk[0], tk[-1], max(200, int((tk[-1] - tk[0]) / 0.002)))))
-    return np.vstack(out) if out else np.zeros((0, len(names)))
+        out.append((stamp, spline(np.linspace(tk[0], tk[-1], max(200, int((tk[-1] - tk[0]) / 0.002))))))
+    return sorted(out, key=lambda p: p[0])
+
+
+def _nearest_on_path(points: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """The point of the polyline through ``points`` nearest ``q`` (Euclidean)."""
+    a, d = points[:-1], np.diff(points, axis=0)
+    dd = np.maximum(np.einsum('ij,ij->i', d, d), 1e-30)
+    s = np.clip(np.einsum('ij,ij->i', q - a, d) / dd, 0.0, 1.0)
+    c = a + s[:, None] * d
+    return c[int(np.argmin(np.einsum('ij,ij->i', c - q, c - q)))]
 
 
 def check_self_stress(dev: Device, probe: Probe, bound: float = 10.0) -> float:
     """The true leg forces stay within ``bound`` N of the static forces of the planned path:
-    for each true sample, the planned configuration nearest its lengths, its equilibrium
-    with the body (the legs on the IK manifold carry only the static load)."""
-    plan = _planned(probe, dev.names)
-    assert len(plan), 'no planned motion seen'
+    for each true sample, the configuration nearest its lengths on the plan running then
+    (the last one stamped to start at or before it; until it starts the drives stand at its
+    first point), its equilibrium with the body (the legs on the IK manifold carry only the
+    static load). Near the lumbar brace's parallel legs two plans may pass within microns
+    of each other in actuator space at poses millimetres apart: a sample is matched to its
+    own motion, never to whichever plan passes closest."""
+    plans = _planned(probe, dev.names)
+    assert plans, 'no planned motion seen'
+    starts = np.array([s for s, _ in plans])
     with probe.lock:
-        samples = [(np.asarray(m.position), np.asarray(m.effort)) for m in probe.sim_joints]
-    worst = 0.0
+        samples = [(stamp_to_ns(m.header.stamp), np.asarray(m.position), np.asarray(m.effort))
+                   for m in probe.sim_joints]
+    worst, checked = 0.0, 0
     guess = dev.home.copy()
-    for q, f in samples[::2]:
-        k = int(np.argmin(np.max(np.abs(plan - q), axis=1)))
-        if np.max(np.abs(plan[k] - q)) > 2e-4:
-            continue            # not on a planned motion (e.g. before the first goal)
-        guess, static = dev.static_forces(plan[k], guess)
+    for stamp, q, f in samples[::2]:
+        i = int(np.searchsorted(starts, stamp, side='right')) - 1
+        if i < 0:
+            continue            # before the first motion
+        q_plan = _nearest_on_path(plans[i][1], q)
+        if np.max(np.abs(q_plan - q)) > 2e-4:
+            continue            # not on a planned motion (lagging behind a start, a stop)
+        guess, static = dev.static_forces(q_plan, guess)
         worst = max(worst, float(np.max(np.abs(f - static))))
+        checked += 1
+    assert checked, 'no true sample on a planned motion'
     assert worst <= bound, f'leg forces {worst:.1f} N away from the static load of the planned path'
     return worst
 
