@@ -38,12 +38,14 @@ import yaml
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from rclpy.context import Context
+from rclpy.time import Time
 from sensor_msgs.msg import JointState
 
 from brace_control.bringup import BringUp
 from brace_control.demo import prepare_config
 from brace_control.nodes import topics
 from brace_control.nodes.msgs import pose_msg, status_values
+from brace_control.sim.brace import REST_STREAM_CATCH_UP
 from ros_helpers import wait_until as wait
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -240,19 +242,25 @@ class Patient:
         w = np.array([fx, fy, mz], dtype=float)
         self.sim.patient_max_wrench = np.where(w > 0.0, w, np.inf)
 
-    def place(self, pose) -> None:
+    def place(self, pose, stamp_ns: int | None = None) -> None:
+        """The trunk's rest pose, stamped now or at ``stamp_ns`` (ROS time)."""
         self.rest = np.asarray(pose, dtype=float)
-        self.pub.publish(pose_msg(self.rest, frame_id='brace_base', mechanism=None,
-                                  stamp=self.node.get_clock().now().to_msg()))
+        now = self.node.get_clock().now()
+        stamp = now if stamp_ns is None else Time(nanoseconds=stamp_ns, clock_type=now.clock_type)
+        self.pub.publish(pose_msg(self.rest, frame_id='brace_base', mechanism=None, stamp=stamp.to_msg()))
 
     def move(self, goal, duration: float) -> None:
-        """Rest pose to ``goal`` in ``duration`` s (minimum jerk, 50 Hz)."""
+        """Rest pose to ``goal`` in ``duration`` s (minimum jerk, 50 Hz), each sample stamped
+        with the instant of the motion it belongs to (a late send does not bunch the trunk's
+        own timing)."""
         start, goal = self.rest.copy(), np.asarray(goal, dtype=float)
         n = max(1, int(duration * 50))
         t0 = time.monotonic()
+        ros_t0 = self.node.get_clock().now().nanoseconds
         for k in range(1, n + 1):
             u = k / n
-            self.place(start + u ** 3 * (10 - 15 * u + 6 * u * u) * (goal - start))
+            self.place(start + u ** 3 * (10 - 15 * u + 6 * u * u) * (goal - start),
+                       ros_t0 + k * 20_000_000)
             time.sleep(max(0.0, t0 + k * 0.02 - time.monotonic()))
 
 
@@ -355,11 +363,11 @@ def test_stroke_holds_while_the_patient_rises_beyond_it(stack):
     assert q.min() >= STROKE[0] and q.max() <= STROKE[1]
     assert lengths.min() >= STROKE[0] and lengths.max() <= STROKE[1]
     # the patient's push plus the tissue damping while the trunk rises past the stopped ring:
-    # C_y x its peak speed (minimum jerk: 1.875 x 60 mm / 3 s), up to three times that for a
-    # trunk streamed over DDS catching up bunched samples (sim/brace.py, a streamed rest
-    # pose; measured 19.1-21.9 N in four full runs)
-    damping_n = C_BODY[1] * 3.0 * 1.875 * 0.060 / 3.0
-    assert np.max(np.abs(w[:, 1])) <= 15.0 + max(FORCE_TOLERANCE_N, damping_n)
+    # C_y x its peak speed (minimum jerk: 1.875 x 60 mm / 3 s), up to REST_STREAM_CATCH_UP x
+    # that when the simulated clock runs slow on a loaded host (sim/brace.py: the streamed
+    # trunk catches up); 0.5 N for the ring's own settling against the legs
+    damping_n = C_BODY[1] * REST_STREAM_CATCH_UP * 1.875 * 0.060 / 3.0
+    assert np.max(np.abs(w[:, 1])) <= 15.0 + damping_n + 0.5
     assert np.max(np.abs(f)) < SOFT_FORCE_LIMIT_N
     assert rec.driver_state().get('state') == 'enabled'    # no drive limit, no protective stop
 

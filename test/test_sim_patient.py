@@ -19,6 +19,7 @@ import pytest
 
 from brace_control.config import ConfigError, DeviceConfig, load_device_config
 from brace_control.sim import SimulatedBrace
+from brace_control.sim.brace import REST_STREAM_CATCH_UP, REST_STREAM_DELAY_S, REST_STREAM_MAX_LEAD_S
 
 ROOT = Path(__file__).resolve().parent.parent
 CFG = ROOT / 'config' / 'lumbar_brace.yaml'
@@ -86,32 +87,36 @@ def test_no_sway_by_default_and_the_rest_pose_moves_on_request() -> None:
 
 
 def test_a_streamed_rest_pose_is_a_moving_trunk_not_a_staircase() -> None:
-    """/brace/sim/body_rest at 50 Hz along a line at 30 mm/s: after two samples the trunk
-    moves at that rate between samples (no 20 ms steps), one interval behind the samples,
-    and the held ring feels the tissue on that motion: ``-K (pose - rest(t)) - D (pose_dot -
-    v)`` with ``rest(t)`` the line, 20 ms late. A jump within the stream is a ramp over one
-    interval, never beyond the sample."""
+    """/brace/sim/body_rest at 50 Hz along a line at 30 mm/s: from the second sample on the
+    trunk moves at that rate (no 20 ms steps), each sample reached REST_STREAM_DELAY_S after
+    it was sent, and the held ring feels the tissue on that motion: ``-K (pose - rest(t)) -
+    D (pose_dot - v)`` with ``rest(t)`` the line, that much late. A jump within the stream is
+    a ramp over one interval, never beyond the sample."""
     brace, params = lumbar()
     K = np.reshape(params['sim']['stiffness'], (3, 3))
     D = np.reshape(params['sim']['damping'], (3, 3))
     rest0 = np.asarray(params['sim']['rest_pose'])
     v = np.array([0.0, 0.030, 0.0])
+    delay = REST_STREAM_DELAY_S
     run(brace, 5)
     t_set = brace.truth().time
+    seen = []
     for k in range(25):                           # 0.5 s: a sample every 10 SYNCs
         brace.set_rest_pose(rest0 + v * (brace.truth().time - t_set))
         for _ in range(10):
             run(brace, 1)
-            tr = brace.truth()
-            if k < 2:                             # the first two samples: a step, then the rate
-                continue
-            line = rest0 + v * (tr.time - t_set - 0.02)
-            np.testing.assert_allclose(tr.body_pose, line, atol=1e-9)
-            np.testing.assert_allclose(tr.body_rate, v, atol=1e-9)
-            expected = -K @ (tr.pose - line) - D @ (tr.pose_dot - v)
-            np.testing.assert_allclose(tr.body_wrench, expected, rtol=1e-3, atol=1e-3)
-    # the stream ends: the trunk stops at the last sample (0.48 s along the line)
-    run(brace, 30)
+            seen.append(brace.truth())
+    for _ in range(round(delay / DT) + 30):       # the stream ends: the trunk stops at the last
+        run(brace, 1)                             # sample (0.48 s along the line)
+        seen.append(brace.truth())
+    on_line = [tr for tr in seen if t_set + 0.02 + delay + 1e-9 < tr.time <= t_set + 0.48 + delay]
+    assert len(on_line) > 200
+    for tr in on_line:
+        line = rest0 + v * (tr.time - t_set - delay)
+        np.testing.assert_allclose(tr.body_pose, line, atol=1e-9)
+        np.testing.assert_allclose(tr.body_rate, v, atol=1e-9)
+        expected = -K @ (tr.pose - line) - D @ (tr.pose_dot - v)
+        np.testing.assert_allclose(tr.body_wrench, expected, rtol=1e-3, atol=1e-3)
     tr = brace.truth()
     np.testing.assert_allclose(tr.body_pose, rest0 + v * 0.48, atol=1e-9)
     np.testing.assert_allclose(tr.body_rate, 0.0)
@@ -121,7 +126,7 @@ def test_a_streamed_rest_pose_is_a_moving_trunk_not_a_staircase() -> None:
     jump = rest0 + v * 0.48 + [0.0, 0.010, 0.0]
     brace.set_rest_pose(jump)
     poses = []
-    for _ in range(15):
+    for _ in range(round(delay / DT) + 15):
         run(brace, 1)
         poses.append(brace.truth().body_pose[1])
     assert max(poses) <= jump[1] + 1e-12 and poses[-1] == pytest.approx(jump[1], abs=1e-12)
@@ -191,22 +196,78 @@ def test_set_sway_starts_the_sine_now() -> None:
 
 def test_a_streamed_rest_pose_takes_its_rate_from_the_stamps_not_the_arrivals() -> None:
     """Samples 20 ms apart by their stamps that arrive bunched (two in one 4 ms window, as a
-    DDS hop may deliver them): the trunk moves at the stamps' rate, 30 mm/s, not 4x it."""
+    DDS hop may deliver them): the trunk moves at the stamps' rate, 30 mm/s exactly, each
+    sample reached REST_STREAM_DELAY_S after its stamp (on the clock of the first). A sample
+    later than that: the trunk goes on from where it is, at the stamps' rate. Samples whose
+    stamps run ahead of the simulated clock: each reached at most REST_STREAM_MAX_LEAD_S
+    after its arrival."""
     brace, params = lumbar()
     rest0 = np.asarray(params['sim']['rest_pose'])
     v = np.array([0.0, 0.030, 0.0])
+    delay = REST_STREAM_DELAY_S
     run(brace, 5)
+    t0 = brace.truth().time
     brace.set_rest_pose(rest0, stamp=100.0)
     run(brace, 10)
     brace.set_rest_pose(rest0 + v * 0.02, stamp=100.02)
     run(brace, 8)                                 # the next arrives 16 ms later ...
     brace.set_rest_pose(rest0 + v * 0.04, stamp=100.04)
     run(brace, 2)
-    # from where the trunk is (4 ms short of the last sample) to the new one in 20 ms: 1.2 v
-    np.testing.assert_allclose(brace.truth().body_rate, 1.2 * v, atol=1e-9)
     brace.set_rest_pose(rest0 + v * 0.06, stamp=100.06)   # ... and this one 4 ms after it
-    run(brace, 1)
-    rate = brace.truth().body_rate[1]
-    # the trunk catches up the samples it is behind over one stamped interval (~2 v); by
-    # arrival it would be 0.02 m over 4 ms: >= 5 v
-    assert 0.8 * v[1] < rate < 2.5 * v[1], rate
+    seen = []
+    while brace.truth().time < t0 + delay + 0.08:
+        run(brace, 1)
+        seen.append(brace.truth())
+    on_line = [tr for tr in seen if t0 + delay + 0.02 + 1e-9 < tr.time <= t0 + delay + 0.06]
+    assert len(on_line) >= 19                     # 40 ms of SYNCs
+    for tr in on_line:
+        np.testing.assert_allclose(tr.body_rate, v, atol=1e-9)
+        np.testing.assert_allclose(tr.body_pose, rest0 + v * (tr.time - t0 - delay), atol=1e-9)
+    np.testing.assert_allclose(brace.truth().body_pose, rest0 + v * 0.06, atol=1e-12)
+    # late: the next sample arrives after the instant it was due; from the last one, held,
+    # over its stamped interval
+    brace.set_rest_pose(rest0 + v * 0.08, stamp=100.08)
+    t_late = brace.truth().time
+    rates = []
+    for _ in range(15):
+        run(brace, 1)
+        rates.append(brace.truth().body_rate[1])
+    # (the truth of a SYNC is the state at its end: 9 SYNCs on the way, the 10th arrives)
+    assert rates[:9] == pytest.approx([v[1]] * 9, abs=1e-9) and rates[9:] == [0.0] * 6
+    np.testing.assert_allclose(brace.truth().body_pose, rest0 + v * 0.08, atol=1e-12)
+    assert brace.truth().time - t_late > 0.02 - 1e-9
+    # stamps 20 ms apart arriving once per 2 ms SYNC (4 s of samples in 0.4 s): the trunk
+    # lags their arrival by at most REST_STREAM_MAX_LEAD_S, never more and more
+    slow = v / 10
+    for k in range(1, 201):
+        brace.set_rest_pose(rest0 + v * 0.08 + slow * 0.02 * k, stamp=100.08 + 0.02 * k)
+        run(brace, 1)
+    t_last = brace.truth().time - DT
+    while brace.truth().body_rate[1] != 0.0:
+        run(brace, 1)
+    np.testing.assert_allclose(brace.truth().body_pose, rest0 + v * 0.08 + slow * 4.0, atol=1e-12)
+    assert REST_STREAM_MAX_LEAD_S - 0.1 < brace.truth().time - t_last <= REST_STREAM_MAX_LEAD_S + DT + 1e-9
+
+def test_a_stream_ahead_of_the_simulated_clock_catches_up_at_a_bounded_rate() -> None:
+    """Stamps 20 ms apart arriving every 16 ms of simulated time (SYNCs skipped: the
+    simulated clock runs 20 % slow): the trunk never moves faster than REST_STREAM_CATCH_UP
+    times the stamps' rate, and it stays within REST_STREAM_DELAY_S + 50 ms + one interval
+    of the samples instead of lagging more and more."""
+    brace, params = lumbar()
+    rest0 = np.asarray(params['sim']['rest_pose'])
+    v = np.array([0.0, 0.030, 0.0])
+    run(brace, 5)
+    rates, lags = [], []
+    for k in range(150):                          # 3 s of stamps in 2.4 s
+        brace.set_rest_pose(rest0 + v * 0.02 * k, stamp=50.0 + 0.02 * k)
+        for _ in range(8):
+            run(brace, 1)
+            tr = brace.truth()
+            rates.append(tr.body_rate[1])
+            lags.append((rest0[1] + v[1] * 0.02 * k - tr.body_pose[1]) / v[1])    # s behind
+    assert max(rates) <= REST_STREAM_CATCH_UP * v[1] + 1e-9
+    assert max(rates) > 1.2 * v[1]                # it did catch up
+    # behind the newest sample: the playout lead (at most 50 ms beyond the delay) plus the
+    # segment in play (up to two intervals), and not growing
+    assert max(lags[-400:]) <= REST_STREAM_DELAY_S + 0.05 + 0.04 + 1e-6
+    assert max(lags[-400:]) <= max(lags[-800:-400]) + 1e-6

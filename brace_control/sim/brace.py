@@ -52,11 +52,11 @@ The patient (the body's own motion and effort, docs/interaction.md):
   set_rest_pose`) plus a scripted sway ``sim.sway_amplitude[i] sin(2 pi
   sim.sway_frequency_hz t + sim.sway_phase[i])`` per pose axis (m or rad; all zero, the
   default: no sway), ``t`` the simulated time since power-up. A stream of rest poses (one
-  every :data:`REST_STREAM_GAP_S` or sooner) is a moving trunk: from each sample the trunk
-  goes on to the next at constant rate over the interval between them (a first-order hold,
-  one interval late; it never overshoots a sample), so a trunk streamed at 50 Hz moves
-  smoothly, with its rate in the tissue damping, not in 20 ms steps; a rest pose after a
-  longer silence is a step;
+  every :data:`REST_STREAM_GAP_S` or sooner) is a moving trunk: it goes through the samples
+  in straight lines, each reached :data:`REST_STREAM_DELAY_S` after its stamp (a playout
+  buffer: samples a DDS hop delivers bunched move it at the rate of their stamps; it never
+  overshoots a sample), so a trunk streamed at 50 Hz moves smoothly, with its rate in the
+  tissue damping, not in 20 ms steps; a rest pose after a longer silence is a step;
 * the tissue between ring and trunk is the spring ``K`` and the damper ``D`` on the
   *relative* motion (pose - rest, pose_dot - rest_dot): a ring that moves with the trunk
   carries no load;
@@ -78,6 +78,7 @@ Example::
 """
 from __future__ import annotations
 
+import itertools
 import math
 import operator
 import threading
@@ -106,6 +107,15 @@ TRUTH_HISTORY = 64
 #: s: rest poses closer than this are samples of one motion of the trunk (its rate is
 #: their difference over the interval); farther apart, each is a step
 REST_STREAM_GAP_S = 0.2
+#: s: a streamed rest pose is reached this long after its stamp (the playout delay of
+#: :meth:`SimulatedBrace.set_rest_pose`: DDS delivery jitter up to it does not show)
+REST_STREAM_DELAY_S = 0.1
+#: a stream whose stamps run ahead of the simulated clock (a loaded host skips SYNCs: the
+#: simulated time runs slow, by 25 % on a loaded 2-core machine) is played at most this
+#: much faster than its stamps while it is more than REST_STREAM_DELAY_S + 50 ms ahead ...
+REST_STREAM_CATCH_UP = 1.25
+#: s: ... and each sample reached at most this long after its arrival
+REST_STREAM_MAX_LEAD_S = 2.0
 
 
 @dataclass(frozen=True)
@@ -220,13 +230,12 @@ class SimulatedBrace:
         self.stiffness = _matrix(sim.get('stiffness', [0.0] * dof * dof), dof, 'sim.stiffness')
         self.damping = _matrix(sim.get('damping', [0.0] * dof * dof), dof, 'sim.damping')
         self.rest_pose = np.asarray(sim.get('rest_pose', self.mechanism.home_pose), dtype=float)
-        # a streamed rest pose (set_rest_pose): the trunk goes from _rest_from at _rest_time
-        # at _rest_rate for _rest_hold s, to rest_pose
-        self._rest_from = self.rest_pose.copy()
-        self._rest_rate = np.zeros(dof)
-        self._rest_time = -math.inf
+        # streamed rest poses (set_rest_pose): the trunk's path, (simulated time, pose) points
+        # it goes through in a straight line between them (the first: where it is, or was
+        # last); _rest_offset maps a sample's stamp to its playout time on the simulated clock
+        self._rest_track: deque[tuple[float, np.ndarray]] = deque([(-math.inf, self.rest_pose.copy())])
         self._rest_stamp: float | None = None
-        self._rest_hold = 0.0
+        self._rest_offset = 0.0
         self._init_patient(sim)
         self._body = self.body_at(0.0)
         self.noise_n = float(sim['load_cell_noise'])
@@ -340,12 +349,24 @@ class SimulatedBrace:
         return min(history, key=lambda t: abs(t.stamp - stamp))
 
     def set_rest_pose(self, pose: np.ndarray, stamp: float | None = None) -> None:
-        """Move the body's rest pose (the patient moves): the next SYNC's physics pulls the
-        platform towards it. Thread safe.
+        """Move the body's rest pose (the patient moves): the physics pulls the platform
+        towards it. Thread safe.
 
-        :param stamp: when the sample was taken (s, any clock; a message's header stamp):
-            the interval to the previous sample is taken from the stamps, not from the
-            arrival (which a DDS hop bunches); ``None``: from the simulated time of arrival.
+        A stream of samples (stamps at most :data:`REST_STREAM_GAP_S` apart) is a moving
+        trunk, played out like a jitter buffer: each sample is reached
+        :data:`REST_STREAM_DELAY_S` after its stamp (on the simulated clock, from the
+        stream's first sample), in a straight line from the previous one, so samples that a
+        DDS hop delivers late or bunched still move the trunk at the rate of their stamps.
+        A sample later than that: the trunk, held at the previous one, goes on from where it
+        is over its stamped interval (the stream's delay grows by as much). A stream whose
+        stamps run ahead of the simulated clock (SYNCs skipped: the simulated world stood
+        still meanwhile, the trunk too) catches up at most :data:`REST_STREAM_CATCH_UP`
+        times its stamps' rate, and each sample is reached at most
+        :data:`REST_STREAM_MAX_LEAD_S` after its arrival. The first sample, or one after a
+        longer silence, is a step.
+
+        :param stamp: when the sample was taken (s, any clock; a message's header stamp);
+            ``None``: its arrival on the simulated clock.
         :raises ValueError: not ``dof`` finite numbers.
         """
         arr = np.asarray(pose, dtype=float)
@@ -353,20 +374,38 @@ class SimulatedBrace:
             raise ValueError(f'body rest pose: expected {self.dof} finite numbers, got {pose!r}')
         with self.lock:
             now = self._time
-            gap = now - self._rest_time
-            if stamp is not None and self._rest_stamp is not None and 0.0 < gap <= REST_STREAM_GAP_S:
-                gap = stamp - self._rest_stamp     # the trunk's own timing
-            self._rest_stamp = stamp
-            if 0.0 < gap <= REST_STREAM_GAP_S:    # the next sample of a moving trunk
-                start = self._streamed_rest(now)[0]
-                self._rest_from, self._rest_hold = start, gap
-                self._rest_rate = (arr - start) / gap
-            else:                                  # a step (or two samples in one SYNC)
-                self._rest_from, self._rest_hold = arr.copy(), 0.0
-                self._rest_rate = np.zeros(self.dof)
+            s = now if stamp is None else float(stamp)
+            track = self._rest_track
+            last = self._rest_stamp
+            self._prune_rest(now)
+            if last is not None and 0.0 < s - last <= REST_STREAM_GAP_S:   # the stream goes on
+                play = s + self._rest_offset
+                if play <= now:                    # later than the buffer: on from here
+                    here = self._streamed_rest(now)[0]
+                    track.clear()
+                    track.append((now, here))
+                    play = now + (s - last)
+                elif play - now > REST_STREAM_DELAY_S + 0.05:    # the stream runs ahead
+                    play = max(track[-1][0] + (s - last) / REST_STREAM_CATCH_UP, now + REST_STREAM_DELAY_S)
+                play = min(play, now + REST_STREAM_MAX_LEAD_S)
+                if play <= track[-1][0]:           # two samples at one instant: the newer
+                    track[-1] = (track[-1][0], arr.copy())
+                else:
+                    track.append((play, arr.copy()))
+                self._rest_offset = play - s
+            else:                                  # a step: the first sample, or after a silence
+                track.clear()
+                track.append((now, arr.copy()))
+                self._rest_offset = now + REST_STREAM_DELAY_S - s
+            self._rest_stamp = s
             self.rest_pose = arr.copy()
-            self._rest_time = now
             self._static = None            # the held state is no longer in equilibrium
+
+    def _prune_rest(self, t: float) -> None:
+        """Forget the trunk's path before the segment it is on at ``t``."""
+        track = self._rest_track
+        while len(track) > 1 and track[1][0] <= t:
+            track.popleft()
 
     def _init_patient(self, sim: Mapping[str, Any]) -> None:
         """``sim.sway_amplitude``, ``sim.sway_frequency_hz``, ``sim.sway_phase``,
@@ -426,12 +465,19 @@ class SimulatedBrace:
             self._static = None
 
     def _streamed_rest(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """The base rest pose at simulated time ``t`` and its rate: on its way from the
-        previous sample to the last one (module docstring), else the last one."""
-        ahead = t - self._rest_time
-        if self._rest_hold > 0.0 and 0.0 <= ahead <= self._rest_hold + 1e-9:   # on the way (or just
-            return self._rest_from + self._rest_rate * ahead, self._rest_rate.copy()  # arrived)
-        return self.rest_pose.copy(), np.zeros(self.dof)
+        """The base rest pose at simulated time ``t`` and its rate: on the trunk's path of
+        streamed samples (:meth:`set_rest_pose`), else the last sample."""
+        track = self._rest_track
+        t1, p1 = track[-1]
+        if t >= t1:
+            return p1.copy(), np.zeros(self.dof)
+        for (ta, pa), (tb, pb) in zip(track, itertools.islice(track, 1, None)):
+            if t < tb:
+                if t < ta:
+                    return pa.copy(), np.zeros(self.dof)
+                rate = (pb - pa) / (tb - ta)
+                return pa + rate * (t - ta), rate
+        return p1.copy(), np.zeros(self.dof)
 
     def body_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Where the patient's trunk wants to be at simulated time ``t`` (s) and its rate:
@@ -707,8 +753,9 @@ class SimulatedBrace:
         rates = [d.velocity_mps for d in self.drives]
         moving_q = any(v != 0.0 for v in rates)              # as np.any: NaN counts as moving
         # the patient's trunk at the end of this step (a swaying trunk is never at rest)
+        self._prune_rest(self._time)
         self._body = self.body_at(self._time + dt)
-        if self._swaying or self._time - self._rest_time < self._rest_hold + dt:
+        if self._swaying or self._time < self._rest_track[-1][0] + dt:
             self._static = None           # the trunk moves (streamed rest poses): no held state
         self._elapsed += dt
         static = self._static
