@@ -109,29 +109,30 @@ class Lifecycle:
         self.name = name
         self._triggers: dict = {}
 
-    def _call(self, client, request, timeout: float = 15.0):
+    def _call(self, client, request, timeout: float = 15.0, *, resend_s: float | None = None):
+        """One call; ``resend_s``: an idempotent request is sent again when no answer came
+        within that long (a server whose response writer has not yet matched this client's
+        reader loses its answer: DDS discovery, slower on a loaded host)."""
         self.ros.spin_until(client.service_is_ready, timeout, f'{client.srv_name} available')
-        future = client.call_async(request)
-        self.ros.spin_until(future.done, timeout, f'{client.srv_name} answered')
-        return future.result()
+        deadline = time.monotonic() + timeout
+        while True:
+            future = client.call_async(request)
+            end = deadline if resend_s is None else min(deadline, time.monotonic() + resend_s)
+            while not future.done() and time.monotonic() < end:
+                self.ros.executor.spin_once(timeout_sec=0.01)
+            if future.done():
+                return future.result()
+            future.cancel()
+            if time.monotonic() >= deadline:
+                pytest.fail(f'{client.srv_name} did not answer within {timeout} s')
 
     def wait_answering(self, timeout: float = 20.0) -> None:
         """Until a ``get_state`` round trip succeeds: a server process that has just started
         may not yet match the client's response reader (its first answers are lost)."""
-        deadline = time.monotonic() + timeout
-        self.ros.spin_until(self.get.service_is_ready, timeout, f'{self.get.srv_name} available')
-        while time.monotonic() < deadline:
-            future = self.get.call_async(GetState.Request())
-            end = min(deadline, time.monotonic() + 1.0)
-            while not future.done() and time.monotonic() < end:
-                self.ros.executor.spin_once(timeout_sec=0.01)
-            if future.done():
-                return
-            future.cancel()
-        pytest.fail(f'{self.get.srv_name} did not answer within {timeout} s')
+        self._call(self.get, GetState.Request(), timeout, resend_s=1.0)
 
     def state(self) -> tuple[int, str]:
-        s = self._call(self.get, GetState.Request()).current_state
+        s = self._call(self.get, GetState.Request(), resend_s=2.0).current_state
         return s.id, s.label
 
     def set(self, transition_id: int) -> bool:
@@ -141,7 +142,8 @@ class Lifecycle:
 
     def available(self) -> set[str]:
         return {t.transition.label for t in
-                self._call(self.transitions, GetAvailableTransitions.Request()).available_transitions}
+                self._call(self.transitions, GetAvailableTransitions.Request(),
+                           resend_s=2.0).available_transitions}
 
     def trigger_client(self, service: str):
         """The client of the driver's ``std_srvs/Trigger`` service (made once: discovery
