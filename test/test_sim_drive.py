@@ -438,6 +438,38 @@ def test_a_stall_of_the_whole_host_process_does_not_trip_the_heartbeat_consumer(
     assert node.sdo[0x6041].raw & 0x6F == 0x27            # still OPERATION ENABLED
 
 
+def test_frames_queued_behind_a_busy_simulator_thread_are_not_silence(rig: Rig) -> None:
+    """The simulator's receive thread busy for 3x the consumer time (here: its SYNC handler
+    sleeps 0.3 s, the GIL free, the timer thread on time) while the master's heartbeats keep
+    arriving in its queue: the drive does not call that silence (sim/host.py), and a master
+    that really falls silent is still caught (test above)."""
+    node = rig.node(3)
+    node.sdo[0x1016][1].raw = (127 << 16) | 100           # consumer time 100 ms
+    hb = rig.net.send_periodic(0x77F, b'\x05', 0.02)
+    enable_csp(rig, 3)
+    handler = rig.sim.host.sync_handler
+    busy, done = threading.Event(), threading.Event()
+
+    def slow_sync(dt: float) -> None:
+        busy.set()
+        time.sleep(0.3)
+        handler(dt)
+        done.set()
+
+    since = rig.rec.mark()
+    rig.sim.host.sync_handler = slow_sync
+    try:
+        rig.net.send_message(0x80, b'')
+        assert busy.wait(1.0) and done.wait(2.0)
+    finally:
+        rig.sim.host.sync_handler = handler
+    rig.rec.wait(cob(0x703), since=rig.rec.mark(), count=3)
+    hb.stop()
+    assert not rig.sim.drive(3).master_heartbeat_lost
+    assert not rig.rec.wait(cob(0x83), since=since, count=0), 'EMCY sent'
+    assert node.sdo[0x6041].raw & 0x6F == 0x27            # still OPERATION ENABLED
+
+
 # ---------------------------------------------------------------- fault injection
 
 def test_injected_heartbeat_silence_emcy_and_error_frames(rig: Rig) -> None:

@@ -443,19 +443,24 @@ class SimulatedDrive:
             else:
                 self._next_hb = math.inf
 
-    def tick(self, now: float) -> float:
+    def tick(self, now: float, heard_until: float | None = None) -> float:
         """Timers: heartbeat producer, heartbeat consumer, TPDO event timers.
 
+        :param heard_until: the consumer judges silence up to this instant (monotonic s;
+            default ``now``): frames sent before it have been handed to this drive (a
+            frame still queued for the simulator's receive thread is not silence).
         :returns: the next time (monotonic s) this drive needs a tick.
         """
         if self.disconnected:
             return now + 0.05
+        heard = now if heard_until is None else min(now, heard_until)
         with self.lock:
             self._produce_heartbeat(now)
-            if now >= self._hb_deadline:
+            if heard >= self._hb_deadline:
                 self._hb_deadline = math.inf
                 self._on_master_heartbeat_lost()
-            nxt = min(self._next_hb, self._hb_deadline)
+            # a deadline passed by the clock but not by the frames received: look again soon
+            nxt = min(self._next_hb, self._hb_deadline if self._hb_deadline > now else now + 0.005)
             if self.nmt_state == NmtState.OPERATIONAL:
                 for pdo in self._tpdo:
                     if pdo.valid and pdo.trans_type >= 254 and pdo.event_ms > 0:

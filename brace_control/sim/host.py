@@ -16,6 +16,10 @@ have stood still for that time (:meth:`SimulatedDrive.host_stalled`), as the phy
 period), and the nodes freeze their start-up heap out of the collector
 (:func:`brace_control.nodes.runner.freeze_start_up_heap`). A master that stops while this
 process runs (its thread stuck, the heartbeat silenced) still trips the drives on time.
+A frame the master sent that still waits in the simulator's receive queue (its Notifier
+thread busy with the physics of earlier SYNCs) is not silence either: the drives' heartbeat
+consumers judge silence only up to the oldest such frame's send time
+(:meth:`SimBus._heard_until`).
 The other way round, the drives' own heartbeats (1017h) go out from whichever simulator
 thread runs first, the timer or the SYNC handling: a real drive's producer does not wait
 for a host thread, and the master must not see a drive vanish because the simulator's timer
@@ -217,6 +221,22 @@ class SimBus:
 
     # ------------------------------------------------------------------ timers
 
+    def _heard_until(self, now: float) -> float:
+        """Up to when (monotonic s) the drives have been handed every frame sent: ``now``, or
+        the send time of the oldest frame still queued for the Notifier thread (python-can's
+        ``virtual`` bus stamps a frame with ``time.time()`` when it is sent). A real drive
+        receives a frame as it crosses the wire; here a busy receive thread may hold it for
+        a while, and that is not the master falling silent (capped at 1 s)."""
+        q = getattr(self.bus, 'queue', None)
+        if q is None:
+            return now
+        with q.mutex:
+            head = q.queue[0] if q.queue else None
+        if head is None:
+            return now
+        age = min(max(time.time() - head.timestamp, 0.0), 1.0)
+        return now - age
+
     def _timer_loop(self) -> None:
         wake_at: float | None = None          # when this thread asked to run again
         while not self._stop.is_set():
@@ -228,10 +248,11 @@ class SimBus:
                 for d in self.drives:
                     d.host_stalled(late)
             nxt = now + 0.05
+            heard = self._heard_until(now)
             # also in bus-off: the drives' consumer timeouts expire (their sends are dropped)
             for d in self.drives:
                 try:
-                    nxt = min(nxt, d.tick(now))
+                    nxt = min(nxt, d.tick(now, heard))
                 except Exception:   # noqa: BLE001 - never kill the timer thread
                     log.exception('simulated drive %d timer failed', d.node_id)
             wake_at = max(nxt, time.monotonic())
