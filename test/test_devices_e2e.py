@@ -62,7 +62,7 @@ def _fourbar_point(m, crank: float) -> np.ndarray:
     n = np.array([-u[1], u[0]])
     cands = [a + x * u + h * n, a + x * u - h * n]
     # open branch: B to the left of the line A -> O4
-    b = next(c for c in cands if np.cross(d, c - a) > 0)
+    b = next(c for c in cands if d[0] * (c - a)[1] - d[1] * (c - a)[0] > 0)
     return a + (l3 + bp) / l3 * (b - a)
 
 

@@ -29,6 +29,7 @@ from brace_control.demo import prepare_config
 from brace_control.nodes import topics
 from brace_control.nodes.msgs import pose_msg, status_values
 from ros_helpers import wait_until as wait
+from seed001 import leg_lengths as legs, leg_matrix
 
 ROOT = Path(__file__).resolve().parent.parent
 LUMBAR = ROOT / 'config' / 'lumbar_brace.yaml'
@@ -49,33 +50,12 @@ K_BODY = np.diag(np.reshape(PARAMS['sim']['stiffness'], (3, 3)))
 
 
 # ------------------------------------------------------------------ feasibility (the oracle)
-# From the YAML's anchors alone (not the mechanism code): leg i is |B_i(pose) - A_i|, the
-# platform wrench of unit leg forces G(pose) (columns u_i, (R b_i) x u_i).
-
-def legs(pose: np.ndarray) -> np.ndarray:
-    """Leg lengths (m) at ``pose`` (x, y m; theta rad)."""
-    a = np.reshape(PARAMS['mechanism']['base_anchors'], (3, 2))
-    b = np.reshape(PARAMS['mechanism']['platform_anchors'], (3, 2))
-    x, y, th = pose
-    c, s = math.cos(th), math.sin(th)
-    return np.array([math.hypot(x + c * b[j, 0] - s * b[j, 1] - a[j, 0], y + s * b[j, 0] + c * b[j, 1] - a[j, 1])
-                     for j in range(3)])
-
+# From the YAML's anchors alone (not the mechanism code): legs and G(pose), test/seed001.py.
 
 def capacity(pose: np.ndarray) -> np.ndarray:
     """Wrench capacity (Fx, Fy N, Mz N·m) with |f| <= actuator.max_force: ``W = G f`` so
     ``f = G^-1 W``; axis i alone holds ``f_max / max_j |(G^-1)_ji|``."""
-    a = np.reshape(PARAMS['mechanism']['base_anchors'], (3, 2))
-    b = np.reshape(PARAMS['mechanism']['platform_anchors'], (3, 2))
-    x, y, th = pose
-    c, s = math.cos(th), math.sin(th)
-    cols = []
-    for j in range(3):
-        rb = np.array([c * b[j, 0] - s * b[j, 1], s * b[j, 0] + c * b[j, 1]])
-        u = np.array([x, y]) + rb - a[j]
-        u = u / np.linalg.norm(u)
-        cols.append([u[0], u[1], rb[0] * u[1] - rb[1] * u[0]])
-    return PARAMS['actuator']['max_force'] / np.max(np.abs(np.linalg.inv(np.array(cols).T)), axis=0)
+    return PARAMS['actuator']['max_force'] / np.max(np.abs(np.linalg.inv(leg_matrix(pose))), axis=0)
 
 
 def sway_feasibility(centre: np.ndarray, amplitude: np.ndarray) -> tuple[float, str]:

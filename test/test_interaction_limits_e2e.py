@@ -47,6 +47,7 @@ from brace_control.nodes import topics
 from brace_control.nodes.msgs import pose_msg, status_values
 from brace_control.sim.brace import REST_STREAM_CATCH_UP
 from ros_helpers import wait_until as wait
+from seed001 import leg_lengths as legs, leg_matrix
 
 ROOT = Path(__file__).resolve().parent.parent
 LUMBAR = ROOT / 'config' / 'lumbar_brace.yaml'
@@ -74,22 +75,7 @@ MOMENT_TOLERANCE_NM = 0.25
 
 
 # ------------------------------------------------------------------ statics (the oracle)
-
-def leg_matrix(pose: np.ndarray) -> np.ndarray:
-    """``G``: the platform wrench ``(Fx, Fy, Mz about the platform origin)`` of unit leg
-    forces, columns per leg: unit vector ``u_j`` from ``A_j`` to ``B_j`` and ``(R b_j) x u_j``."""
-    a = np.reshape(PARAMS['mechanism']['base_anchors'], (3, 2))
-    b = np.reshape(PARAMS['mechanism']['platform_anchors'], (3, 2))
-    x, y, th = pose
-    c, s = math.cos(th), math.sin(th)
-    cols = []
-    for j in range(3):
-        rb = np.array([c * b[j, 0] - s * b[j, 1], s * b[j, 0] + c * b[j, 1]])
-        d = np.array([x, y]) + rb - a[j]
-        u = d / np.linalg.norm(d)
-        cols.append([u[0], u[1], rb[0] * u[1] - rb[1] * u[0]])
-    return np.array(cols).T
-
+# legs and G(pose) from the YAML's anchors alone: test/seed001.py
 
 def ring_wrench(poses: np.ndarray, forces: np.ndarray) -> np.ndarray:
     """``G(pose) f`` per sample: the wrench (Fx, Fy N, Mz N·m) the legs apply on the ring,
@@ -101,16 +87,6 @@ def moment_capacity(pose: np.ndarray) -> float:
     """The largest |Mz| (N·m) the legs hold at ``pose`` with |f| <= actuator.max_force and
     no force: ``F_RATED / max_j |(G^-1)_j,Mz|``."""
     return F_RATED / float(np.max(np.abs(np.linalg.inv(leg_matrix(pose))[:, 2])))
-
-
-def legs(pose: np.ndarray) -> np.ndarray:
-    """Leg lengths |B_j - A_j| (m) at ``pose``."""
-    a = np.reshape(PARAMS['mechanism']['base_anchors'], (3, 2))
-    b = np.reshape(PARAMS['mechanism']['platform_anchors'], (3, 2))
-    x, y, th = pose
-    c, s = math.cos(th), math.sin(th)
-    return np.array([np.hypot(x + c * b[j, 0] - s * b[j, 1] - a[j, 0], y + s * b[j, 0] + c * b[j, 1] - a[j, 1])
-                     for j in range(3)])
 
 
 # ------------------------------------------------------------------------ recording

@@ -12,29 +12,17 @@ import re
 
 import numpy as np
 import pytest
-import yaml
 
 from brace_control.tools.kinematics import main
 from ros_helpers import LUMBAR_YAML
+from seed001 import leg_lengths, leg_matrix
 
 NUM = r'(-?\d+\.\d+)'
 
 
 def lumbar_oracle(pose, forces):
-    """Seed 001: l_i = |p + R b_i - a_i|; wrench F = sum f_i u_i, M = sum f_i (R b_i x u_i)."""
-    m = yaml.safe_load(LUMBAR_YAML.read_text())['/**']['ros__parameters']['mechanism']
-    A = np.reshape(m['base_anchors'], (3, 2))
-    B = np.reshape(m['platform_anchors'], (3, 2))
-    x, y, th = pose
-    R = np.array([[math.cos(th), -math.sin(th)], [math.sin(th), math.cos(th)]])
-    rb = B @ R.T
-    d = np.array([x, y]) + rb - A
-    ln = np.linalg.norm(d, axis=1)
-    u = d / ln[:, None]
-    f = np.asarray(forces, float)
-    F = (f[:, None] * u).sum(axis=0)
-    M = float(np.sum(f * (rb[:, 0] * u[:, 1] - rb[:, 1] * u[:, 0])))
-    return ln, np.array([F[0], F[1], M])
+    """Seed 001: the leg lengths and the wrench ``G f`` of the leg forces (test/seed001.py)."""
+    return leg_lengths(pose), leg_matrix(pose) @ np.asarray(forces, float)
 
 
 def wrench_of(out: str) -> np.ndarray:
