@@ -11,7 +11,9 @@ reports (SAFETY.md 12, 16):
   of the goal within ``settle_time`` after that and stayed within it for
   :data:`SETTLE_CONFIRM_S` (a ring still creeping across the edge of the tolerance has not
   arrived: the estimate samples it, and a ring judged on its first sample inside may be
-  outside again by the time the success is reported);
+  outside again by the time the success is reported), with the mean of that window's
+  estimates plus twice their scatter inside too (a ring resting at the edge is not judged
+  on the estimate's noise);
 * **aborted** when the driver rejected or stopped the motion (halt, disable, protective
   stop: the reason is the driver's), when the drives left the enabled state, when the
   ring did not follow (the estimate stayed off the goal: by how much, per coordinate), or
@@ -128,6 +130,8 @@ class _Goal:
     finished_at: float | None = None      # when the driver reported the motion finished
     best_error: np.ndarray | None = None
     inside_since: float | None = None     # stamp of the first estimate of the run inside the tolerance
+    #: the run of estimates inside the tolerance, (stamp, error per axis), signed
+    inside: list[tuple[float, np.ndarray]] = field(default_factory=list)
 
 
 class TrajectoryRunner:
@@ -359,18 +363,28 @@ class TrajectoryRunner:
         goal = self._goal
         if goal is None or goal.finished_at is None or stamp < goal.finished_at:
             return []
-        err = np.abs(self._estimate - goal.target)
+        signed = self._estimate - goal.target
+        err = np.abs(signed)
         if goal.best_error is None or np.max(err / self.pose_tolerance) < np.max(goal.best_error / self.pose_tolerance):
             goal.best_error = err
         if not np.all(err <= self.pose_tolerance):
             goal.inside_since = None
+            goal.inside.clear()
             return []
         if goal.inside_since is None:
             goal.inside_since = stamp
+        goal.inside.append((stamp, signed))
         if stamp - goal.inside_since >= SETTLE_CONFIRM_S - 1e-9:
-            self._goal = None
-            return [GoalEvent(goal.goal_id, GoalState.SUCCEEDED, '', goal.target, goal.duration,
-                              goal.profile, {'final_error': err.tolist()})]
+            # the estimates of the last SETTLE_CONFIRM_S: their mean plus twice their scatter
+            # inside the tolerance (a ring resting at its edge is not judged on the noise of
+            # the estimate: the truth may be just outside)
+            while len(goal.inside) > 1 and goal.inside[1][0] <= stamp - SETTLE_CONFIRM_S + 1e-9:
+                goal.inside.pop(0)
+            window = np.array([e for _, e in goal.inside])
+            if np.all(np.abs(window.mean(axis=0)) + 2.0 * window.std(axis=0) <= self.pose_tolerance):
+                self._goal = None
+                return [GoalEvent(goal.goal_id, GoalState.SUCCEEDED, '', goal.target, goal.duration,
+                                  goal.profile, {'final_error': err.tolist()})]
         return []
 
     def check(self, now: float) -> list[GoalEvent]:
