@@ -515,7 +515,7 @@ class CanDriverNode(LifecycleNode):
 
     def _on_body_rest(self, msg: Any) -> None:
         """Simulation: where the patient's body rests (a test or a script moves the patient)."""
-        from .msgs import pose_from_msg
+        from .msgs import pose_from_msg, stamp_to_sec
         sim = self.sim
         if sim is None:
             self.get_logger().warning('body rest pose ignored: the simulated brace starts on configure',
@@ -523,7 +523,7 @@ class CanDriverNode(LifecycleNode):
             return
         try:
             pose = pose_from_msg(msg, frame_id=self.cfg['base_frame'], mechanism=self.mechanism)
-            stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+            stamp = stamp_to_sec(msg.header.stamp)
             sim.set_rest_pose(pose, stamp if stamp > 0.0 else None)
         except ValueError as exc:
             self.get_logger().warning(f'body rest pose ignored: {exc}', throttle_duration_sec=1.0)
