@@ -21,22 +21,23 @@ A = np.reshape(np.asarray(_M['base_anchors'], float), (3, 2))
 B = np.reshape(np.asarray(_M['platform_anchors'], float), (3, 2))
 
 
-def _legs(pose) -> tuple[np.ndarray, np.ndarray]:
-    """``(R b_j, B_j - A_j)`` per leg (rows)."""
+def leg_vectors(pose) -> tuple[np.ndarray, np.ndarray]:
+    """``(B_j - A_j, R b_j)`` per leg (rows): the leg vectors and the platform anchors in
+    world orientation, at ``pose`` (x, y m; theta rad)."""
     x, y, th = pose
     c, s = math.cos(th), math.sin(th)
     rb = B @ np.array([[c, s], [-s, c]])
-    return rb, np.array([x, y]) + rb - A
+    return np.array([x, y]) + rb - A, rb
 
 
 def leg_lengths(pose) -> np.ndarray:
     """Leg lengths (m) at ``pose`` (x, y m; theta rad)."""
-    return np.linalg.norm(_legs(pose)[1], axis=1)
+    return np.linalg.norm(leg_vectors(pose)[0], axis=1)
 
 
 def leg_matrix(pose) -> np.ndarray:
     """``G`` (3x3): the platform wrench ``(Fx, Fy, Mz)`` of unit leg forces, one column per
     leg ``(u_j, (R b_j) x u_j)``; the wrench of leg forces ``f`` is ``G f``."""
-    rb, d = _legs(pose)
+    d, rb = leg_vectors(pose)
     u = d / np.linalg.norm(d, axis=1)[:, None]
     return np.vstack([u[:, 0], u[:, 1], rb[:, 0] * u[:, 1] - rb[:, 1] * u[:, 0]])

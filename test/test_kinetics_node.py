@@ -1,7 +1,7 @@
 """kinetics_node with real rclpy and DDS: joint states in; the load-aware pose estimate, its
 covariance and the wrench out.
 
-Oracles written here from the seed's eq. 3 and kinetics (leg vectors, W = sum f_i u_i) and
+Oracles from the seed's eq. 3 and kinetics (leg vectors, W = sum f_i u_i: test/seed001.py) and
 the leg model f = k (q - l(p)): a ring at pose p with leg forces f reads q = l(p) + f / k.
 """
 from __future__ import annotations
@@ -21,12 +21,11 @@ from brace_control.mechanisms import UnreachablePose, load_mechanism
 from brace_control.nodes.msgs import (joint_state, planar_pose_from_msg, pose_covariance_6x6,
                                       sec_to_stamp, stamp_to_ns)
 from ros_helpers import LUMBAR_YAML, RELIABLE_10, REPO
+from seed001 import leg_lengths as lengths, leg_matrix
 
 pytestmark = pytest.mark.ros
 
 CFG = load_device_config(LUMBAR_YAML)
-A = np.asarray(CFG['mechanism']['base_anchors'], float).reshape(3, 2)
-B = np.asarray(CFG['mechanism']['platform_anchors'], float).reshape(3, 2)
 NAMES = list(CFG['mechanism']['actuator_names'])
 K_LEG = float(CFG['actuator']['stiffness'])
 DEG = math.pi / 180.0
@@ -34,16 +33,6 @@ DEG = math.pi / 180.0
 
 def rot(th: float) -> np.ndarray:
     return np.array([[math.cos(th), -math.sin(th)], [math.sin(th), math.cos(th)]])
-
-
-def legs(pose):
-    """Leg vectors a_i -> b_i (world) and platform anchors in world orientation."""
-    rb = B @ rot(pose[2]).T
-    return np.asarray(pose[:2]) + rb - A, rb
-
-
-def lengths(pose) -> np.ndarray:
-    return np.linalg.norm(legs(pose)[0], axis=1)
 
 
 def encoders(pose, forces) -> np.ndarray:
@@ -54,9 +43,7 @@ def encoders(pose, forces) -> np.ndarray:
 
 def jacobian(pose) -> np.ndarray:
     """Rows (u_i, (R b_i) x u_i): dl_i = J (dx, dy, dtheta)."""
-    d, rb = legs(pose)
-    u = d / np.linalg.norm(d, axis=1)[:, None]
-    return np.column_stack([u, rb[:, 0] * u[:, 1] - rb[:, 1] * u[:, 0]])
+    return leg_matrix(pose).T
 
 
 def expected_covariance(pose, forces) -> np.ndarray:
@@ -73,12 +60,8 @@ def expected_covariance(pose, forces) -> np.ndarray:
 def body_wrench_platform_frame(pose, forces) -> np.ndarray:
     """Oracle (seed 001, kinetics): thrust f_i along each leg pushes the platform;
     F = sum f_i u_i, M = sum (R b_i) x f_i u_i about P; F expressed in the platform frame."""
-    d, rb = legs(pose)
-    u = d / np.linalg.norm(d, axis=1)[:, None]
-    fvec = np.asarray(forces)[:, None] * u
-    force = fvec.sum(axis=0)
-    moment = float(np.sum(rb[:, 0] * fvec[:, 1] - rb[:, 1] * fvec[:, 0]))
-    return np.array([*(rot(pose[2]).T @ force), moment])
+    w = leg_matrix(pose) @ np.asarray(forces, float)
+    return np.array([*(rot(pose[2]).T @ w[:2]), w[2]])
 
 
 @pytest.fixture
