@@ -260,6 +260,9 @@ def reset(b: BringUp, rec: Record, patient: Patient) -> None:
     (10 N, 0.5 N·m), so that a trunk left far from the ring by a test cannot load it."""
     patient.max_wrench(10.0, 10.0, 0.5)
     patient.place(HOME)
+    # the trunk is home before the brace goes there (the simulator plays a streamed trunk
+    # out behind its stamps: a previous test's motion may still be arriving)
+    wait(lambda: np.allclose(patient.sim.truth().body_pose, HOME, atol=1e-9), 10, 'the trunk at home')
     if rec.driver_state().get('state') == 'fault':
         b.call('/can_driver_node/relieve', timeout=30)
         ok, msg = b.call('/can_driver_node/recover', timeout=15)
