@@ -56,6 +56,7 @@ from typing import Any
 
 from .can.errors import DriverError
 from .config import ConfigError, load_device_config, resolve_device_file
+from .dds import use_packaged_profiles
 from .nodes import topics
 
 __all__ = ['NODE_NAMES', 'STACK_LINKS', 'BringUp', 'ProcessBringUp', 'node_class', 'find_executable',
@@ -491,6 +492,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         argv, extra = argv[:i], argv[i + 1:]
     args = _parser().parse_args(argv)
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    use_packaged_profiles()
     import rclpy
     from rclpy.signals import SignalHandlerOptions
 

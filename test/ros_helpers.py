@@ -76,12 +76,13 @@ class Ros:
         return box
 
     def spin_until(self, predicate: Callable[[], bool], timeout: float = 5.0,
-                   what: str = 'condition') -> None:
-        """Spin until ``predicate()`` is true; fail the test after ``timeout`` seconds."""
+                   what: str | Callable[[], str] = 'condition') -> None:
+        """Spin until ``predicate()`` is true; fail the test after ``timeout`` seconds
+        (``what``: the condition's name, or a function saying what was seen then)."""
         deadline = time.monotonic() + timeout
         while not predicate():
             if time.monotonic() > deadline:
-                pytest.fail(f'timed out after {timeout} s waiting for {what}')
+                pytest.fail(f'timed out after {timeout} s waiting for {what() if callable(what) else what}')
             self.executor.spin_once(timeout_sec=0.01)
 
     def spin_for(self, duration: float) -> None:

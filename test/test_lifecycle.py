@@ -113,7 +113,8 @@ class Lifecycle:
         """One call; ``resend_s``: an idempotent request is sent again when no answer came
         within that long (a server whose response writer has not yet matched this client's
         reader loses its answer: DDS discovery, slower on a loaded host)."""
-        self.ros.spin_until(client.service_is_ready, timeout, f'{client.srv_name} available')
+        self.ros.spin_until(client.service_is_ready, timeout,
+                            lambda: f'{client.srv_name} available; {self.graph(client.srv_name)}')
         deadline = time.monotonic() + timeout
         while True:
             future = client.call_async(request)
@@ -125,6 +126,17 @@ class Lifecycle:
             future.cancel()
             if time.monotonic() >= deadline:
                 pytest.fail(f'{client.srv_name} did not answer within {timeout} s')
+
+    def graph(self, service: str) -> str:
+        """The service's DDS endpoints as this probe sees them (rmw_fastrtps calls a server
+        available only when their counts agree): for a failure message."""
+        name = service.lstrip('/')
+        parts = []
+        for topic, kind in ((f'rq/{name}Request', 'request readers'), (f'rr/{name}Reply', 'response writers')):
+            info = (self.probe.get_subscriptions_info_by_topic if kind.endswith('readers')
+                    else self.probe.get_publishers_info_by_topic)(topic, no_mangle=True)
+            parts.append(f"{kind}: {[f'{i.node_namespace.rstrip(chr(47))}/{i.node_name}' for i in info]}")
+        return ', '.join(parts)
 
     def wait_answering(self, timeout: float = 20.0) -> None:
         """Until a ``get_state`` round trip succeeds: a server process that has just started
