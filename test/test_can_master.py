@@ -312,6 +312,43 @@ def test_fault_heartbeat_silenced(rig):
     master.enable()
 
 
+class _StallingListener(can.Listener):
+    """Holds canopen's Notifier thread (the master's only receive thread) for ``stall`` s
+    at every ``every``-th frame: the frames queue on the bus meanwhile, as they do in the
+    socket of a process the host did not schedule."""
+
+    def __init__(self, stall: float, every: int) -> None:
+        self.stall, self.every, self.frames, self.stalls = stall, every, 0, 0
+        self.armed = True
+
+    def on_message_received(self, msg: can.Message) -> None:
+        self.frames += 1
+        if self.armed and self.frames % self.every == 0:
+            self.stalls += 1
+            time.sleep(self.stall)
+
+
+def test_a_receive_thread_behind_is_not_a_lost_heartbeat(rig):
+    """SAFETY.md 4 judged on what the bus carried: the receive thread held 140 ms at a time
+    (< the 150 ms consumer time, > its 100 ms margin over the drives' 50 ms heartbeat)
+    eight times, at different phases of the heartbeat: every drive went on sending, so no
+    heartbeat is lost. A drive that does fall silent meanwhile is still caught."""
+    sim, master = rig
+    stalls = _StallingListener(0.14, every=389)     # 389 frames: ~0.26 s at 3 TPDO / 2 ms
+    master.network.notifier.add_listener(stalls)
+    try:
+        wait_for(lambda: stalls.stalls >= 8, 8.0, '8 stalls of the receive thread', poll=0.01)
+        assert not master.supervisor.latched, master.supervisor.summary()
+        sim.faults.silence_heartbeat(2)
+        # one consumer time on the bus, plus at most one stall of the receive thread
+        wait_for(_latched(master, FaultKind.HEARTBEAT_LOST, 'a2'), 0.15 + 0.14 + SLACK, 'heartbeat fault')
+        assert [f.drive for f in master.supervisor.faults if f.kind is FaultKind.HEARTBEAT_LOST] == ['a2']
+    finally:
+        stalls.armed = False
+        master.network.notifier.remove_listener(stalls)
+        sim.faults.silence_heartbeat(2, False)
+
+
 def test_fault_emcy_with_drive_fault(rig):
     """Bound: the EMCY frame itself (≤ 1 period) + slack."""
     sim, master = rig

@@ -108,13 +108,20 @@ class Lifecycle:
                                                f'{name}/get_available_transitions')
         self.name = name
         self._triggers: dict = {}
+        self._answered: set = set()             # clients that had an answer
 
     def _call(self, client, request, timeout: float = 15.0, *, resend_s: float | None = None):
         """One call; ``resend_s``: an idempotent request is sent again when no answer came
         within that long (a server whose response writer has not yet matched this client's
-        reader loses its answer: DDS discovery, slower on a loaded host)."""
-        self.ros.spin_until(client.service_is_ready, timeout,
-                            lambda: f'{client.srv_name} available; {self.graph(client.srv_name)}')
+        reader loses its answer: DDS discovery, slower on a loaded host).
+
+        ``service_is_ready`` is waited for until the client's first answer only: rmw_fastrtps
+        calls a server unavailable while its DDS endpoint counts disagree, e.g. while another
+        participant of the domain is being discovered or removed; the server that answered
+        is still there."""
+        if client not in self._answered:
+            self.ros.spin_until(client.service_is_ready, timeout,
+                                lambda: f'{client.srv_name} available; {self.graph(client.srv_name)}')
         deadline = time.monotonic() + timeout
         while True:
             future = client.call_async(request)
@@ -122,10 +129,12 @@ class Lifecycle:
             while not future.done() and time.monotonic() < end:
                 self.ros.executor.spin_once(timeout_sec=0.01)
             if future.done():
+                self._answered.add(client)
                 return future.result()
             future.cancel()
             if time.monotonic() >= deadline:
-                pytest.fail(f'{client.srv_name} did not answer within {timeout} s')
+                pytest.fail(f'{client.srv_name} did not answer within {timeout} s; '
+                            f'{self.graph(client.srv_name)}')
 
     def graph(self, service: str) -> str:
         """The service's DDS endpoints as this probe sees them (rmw_fastrtps calls a server

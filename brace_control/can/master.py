@@ -157,6 +157,8 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
         #: the most SYNCs a TPDO1 may answer late and still be counted (see _answered_sync)
         self.attribution_window = 25
         self._tpdo_total = 0
+        #: bus timestamp (wall clock) of the newest frame received from a drive
+        self._rx_wall = -math.inf
         self._last_wake = 0.0
         self._grace_until = 0.0               # monotonic: after a host stall of this process
         self._hb_period = config.master_heartbeat_ms * 1e-3
@@ -529,7 +531,7 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
             drives.append(DriveStatus(
                 d.name, d.node_id, nmt, d.state, s.statusword if s else 0,
                 s.position if s else math.nan, d.velocity, s.force if s else math.nan,
-                self.scaling.to_si(d.target), now - d.hb_time, emcy, d.samples))
+                self.scaling.to_si(d.target), self.heartbeat_age(d), emcy, d.samples))
         frames, load = self._rate
         bus = BusStatus(frames, load, self._bus_error_state, self.error_frames, self.send_failures)
         return MasterStatus(self.state, tuple(drives), bus, self.stats.report(),

@@ -56,7 +56,7 @@ class MonitorMixin:
     # ------------------------------------------------------------------ "cause still present" predicates
 
     def _heartbeat_missing(self, d: _Drive) -> Callable[[], bool]:
-        return lambda: time.monotonic() - d.hb_time > self.limits.heartbeat_timeout
+        return lambda: self.heartbeat_age(d) > self.limits.heartbeat_timeout
 
     def _nmt_not_operational(self, d: _Drive) -> Callable[[], bool]:
         return lambda: d.nmt != NmtState.OPERATIONAL
@@ -109,8 +109,8 @@ class MonitorMixin:
         in_grace = now < self._grace_until
         for d in self._drives:
             name = d.name
-            if now - d.hb_time > limits.heartbeat_timeout and not in_grace:
-                age = now - d.hb_time
+            age = self.heartbeat_age(d)
+            if age > limits.heartbeat_timeout and not in_grace:
                 self.supervisor.report(
                     FaultKind.HEARTBEAT_LOST,
                     f'no heartbeat from node {d.node_id} for {age * 1e3:.0f} ms '

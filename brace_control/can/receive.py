@@ -34,11 +34,13 @@ class ReceiveMixin:
         unpack = TPDO1.unpack_from
         period = self.config.period
         to_si, force_si = self.scaling.to_si, self.scaling.force_to_si
+        bus_time = self._bus_time
 
         def on_tpdo(can_id: int, data: bytearray, timestamp: float) -> None:
             if len(data) < TPDO1.size:
                 return
             sw, pos, load = unpack(data)
+            bus_time(timestamp)
             prev = d.sample
             index, t = self._answered_sync(timestamp, None if prev is None else prev.sync_index)
             p = to_si(pos)
@@ -90,12 +92,41 @@ class ReceiveMixin:
         first = log_[0][2]
         return (index, log_[index - first][1]) if 0 <= index - first < len(log_) else bound
 
+    def _bus_time(self, timestamp: float) -> float:
+        """The frame's bus timestamp on the wall clock (its receipt time where the
+        interface's clock is another, or the frame is more than 0.5 s old); advances
+        :attr:`_rx_wall`, the newest such time received."""
+        wall = time.time()
+        t = timestamp if abs(timestamp - wall) < 0.5 else wall
+        if t > self._rx_wall:
+            self._rx_wall = t
+        return t
+
+    def heartbeat_age(self, d: _Drive) -> float:
+        """s since drive ``d``'s last heartbeat, on the bus's clock (SAFETY 4).
+
+        Judged on what was received, like :meth:`~.monitors.MonitorMixin._stale`: while the
+        receive thread is behind by less than the consumer time, the age is the span of
+        frames received since the heartbeat (other drives' TPDOs go on arriving when one
+        drive falls silent), so frames still queued for a thread that did not get to run
+        do not make a heartbeat look lost. When nothing at all has been received for longer
+        than the consumer time or the all-silent bound (:attr:`all_silent_periods`, the
+        drives' own consumer time of our heartbeat), whichever is longer (the bus, the
+        wiring, or a host too starved to receive), it is the time since the heartbeat by
+        the wall clock."""
+        wall = time.time()
+        newest = self._rx_wall
+        if wall - newest <= max(self.limits.heartbeat_timeout, self.all_silent_periods * self.config.period):
+            return newest - d.hb_wall
+        return wall - d.hb_wall
+
     def _heartbeat_callback(self, d: _Drive) -> Callable[[int, bytearray, float], None]:
         def on_heartbeat(can_id: int, data: bytearray, timestamp: float) -> None:
             if not data:
                 return
             state = data[0] & 0x7F
             d.hb_time = time.monotonic()
+            d.hb_wall = self._bus_time(timestamp)
             d.nmt = NmtState.PRE_OPERATIONAL if state == NmtState.BOOTUP else state
             if state == NmtState.BOOTUP and self._supervising:
                 # a drive rebooted: configuration and homing are gone
