@@ -15,7 +15,7 @@ setup(
         (f'share/{package_name}/config', glob('config/*.yaml') + glob('config/*.eds')),
         (f'share/{package_name}/launch', glob('launch/*.launch.py')),
     ],
-    package_data={package_name: ['py.typed', 'fastdds_profiles.xml']},
+    package_data={package_name: ['py.typed']},
     install_requires=['setuptools'],
     zip_safe=True,
     maintainer='brace_control developers',

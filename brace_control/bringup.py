@@ -56,11 +56,11 @@ from typing import Any
 
 from .can.errors import DriverError
 from .config import ConfigError, load_device_config, resolve_device_file
-from .dds import use_packaged_profiles
 from .nodes import topics
 
-__all__ = ['NODE_NAMES', 'STACK_LINKS', 'BringUp', 'ProcessBringUp', 'node_class', 'find_executable',
-           'disable_drives', 'missing_links', 'wait_for_links', 'wait_until_ready', 'main']
+__all__ = ['NODE_NAMES', 'STACK_LINKS', 'IDEMPOTENT_SERVICES', 'BringUp', 'ProcessBringUp', 'node_class',
+           'find_executable', 'call_trigger', 'disable_drives', 'missing_links', 'wait_for_links',
+           'wait_until_ready', 'main']
 
 #: the nodes of a device, in data-flow order
 NODE_NAMES = ('trajectory_node', 'ik_node', 'can_driver_node', 'kinetics_node', 'interaction_node')
@@ -94,31 +94,55 @@ def _trigger_services(node: Any, suffix: str) -> list[str]:
                   if name.rstrip('/').endswith(suffix) and 'std_srvs/srv/Trigger' in types)
 
 
+#: the driver's services whose repetition is harmless: the answer to a repeat is the state
+#: reached (home while disabled homes at the same position again; enable when enabled and
+#: disable when disabled return at once)
+IDEMPOTENT_SERVICES = frozenset({'home', 'enable', 'disable'})
+#: s without an answer after which :func:`call_trigger` sends an idempotent request again
+RESEND_S = 2.0
+
+
 def call_trigger(node: Any, service: str, *, timeout: float = 5.0,
-                 executor: Any = None) -> tuple[bool, str]:
+                 executor: Any = None, resend_s: float | None = None) -> tuple[bool, str]:
     """Call a ``std_srvs/Trigger`` service from ``node``; ``(success, message)``.
 
     If ``executor`` is given the node is already spun by it (another thread);
     otherwise the call spins ``node`` itself.
+
+    A server drops its answer when it has not yet matched the new client's response reader
+    (rmw_fastrtps waits 100 ms for it: "failed to send response (timeout): client will not
+    receive response"; discovery can take longer on a loaded host). The request was carried
+    out; only the answer is lost. A service in :data:`IDEMPOTENT_SERVICES` (by its last
+    name component) is therefore asked again after ``resend_s`` (default :data:`RESEND_S`)
+    without an answer, within ``timeout``; any other is asked once (``resend_s`` given:
+    that service too).
     """
     import rclpy
     from std_srvs.srv import Trigger
+    if resend_s is None and service.rstrip('/').rsplit('/', 1)[-1] in IDEMPOTENT_SERVICES:
+        resend_s = RESEND_S
     client = node.create_client(Trigger, service)
     try:
         if not client.wait_for_service(timeout_sec=timeout):
             return False, f'{service} not available'
-        future = client.call_async(Trigger.Request())
-        if executor is None:
-            rclpy.spin_until_future_complete(node, future, timeout_sec=timeout)
-        else:
-            deadline = time.monotonic() + timeout
-            while not future.done() and time.monotonic() < deadline:
-                time.sleep(0.005)
-        if not future.done():
+        deadline = time.monotonic() + timeout
+        sent = 0
+        while True:
+            future = client.call_async(Trigger.Request())
+            sent += 1
+            end = deadline if resend_s is None else min(deadline, time.monotonic() + resend_s)
+            if executor is None:
+                rclpy.spin_until_future_complete(node, future, timeout_sec=max(end - time.monotonic(), 0.0))
+            else:
+                while not future.done() and time.monotonic() < end:
+                    time.sleep(0.005)
+            if future.done():
+                res = future.result()
+                return bool(res.success), str(res.message)
             future.cancel()
-            return False, f'{service}: no answer within {timeout} s'
-        res = future.result()
-        return bool(res.success), str(res.message)
+            if time.monotonic() >= deadline:
+                asked = f' (asked {sent} times)' if sent > 1 else ''
+                return False, f'{service}: no answer within {timeout} s{asked}'
     finally:
         node.destroy_client(client)
 
@@ -492,7 +516,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         argv, extra = argv[:i], argv[i + 1:]
     args = _parser().parse_args(argv)
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    use_packaged_profiles()
     import rclpy
     from rclpy.signals import SignalHandlerOptions
 

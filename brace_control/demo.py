@@ -44,7 +44,6 @@ from typing import Any
 import numpy as np
 import yaml
 
-from .dds import use_packaged_profiles
 from .nodes import topics
 
 __all__ = ['main', 'prepare_config', 'RECORDED_TOPICS']
@@ -205,7 +204,6 @@ def run_demo(device: str, out: Path, *, rate: float = 1.0, settle: float = 3.0,
              processes: bool = False, extra_args: Sequence[str] = DEMO_PARAMS) -> int:
     """The demo; see the module docstring. Returns the exit code."""
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    use_packaged_profiles()
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions

@@ -44,7 +44,6 @@ from typing import Any
 
 import numpy as np
 
-from .dds import use_packaged_profiles
 from .nodes import topics
 
 __all__ = ['INTERACTION_TOPICS', 'Script', 'plan_script', 'run_interaction_demo', 'PATIENT_RATE_HZ']
@@ -379,7 +378,6 @@ def run_interaction_demo(device: str, out: Path, *, processes: bool = True,
         e.g. for a test.
     """
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    use_packaged_profiles()
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions

@@ -7,17 +7,12 @@ import os
 
 import pytest
 
-from brace_control.dds import use_packaged_profiles
-
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 # Our own domain per test run so two runs on one machine never cross-talk
 # (1..200; Fast DDS domain ids stay below 233).
 os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 200))
 os.environ.setdefault('MPLBACKEND', 'Agg')
 os.environ.setdefault('RCUTILS_LOGGING_BUFFERED_STREAM', '1')
-# the stack's own Fast DDS profiles (brace_control.dds): servers wait for a new client's
-# response reader instead of dropping the answer
-use_packaged_profiles()
 
 
 @pytest.fixture

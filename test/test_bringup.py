@@ -115,3 +115,49 @@ def test_cli_stops_cleanly_on_sigint_and_sigterm(ros, mode):
             if proc.poll() is None:
                 proc.kill()
                 proc.wait()
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize('service, asked, outcome', [
+    ('home', 2, (True, 'done, request 2')),      # idempotent: asked again, its answer counts
+    ('halt', 1, (False, 'no answer')),           # not idempotent: asked once only
+])
+def test_call_trigger_asks_an_idempotent_service_again_when_its_answer_is_lost(service, asked, outcome):
+    """A server whose answer to the first request never comes (as when rmw_fastrtps drops
+    it: the new client's reader not yet matched): ``call_trigger`` sends ``home``,
+    ``enable`` or ``disable`` again and returns the second answer; anything else it reports
+    unanswered."""
+    import threading
+
+    from rclpy.callback_groups import ReentrantCallbackGroup
+    from rclpy.executors import MultiThreadedExecutor
+    from rclpy.task import Future
+    from std_srvs.srv import Trigger
+
+    from brace_control.bringup import call_trigger
+
+    ctx = Context()
+    rclpy.init(context=ctx)
+    try:
+        server = rclpy.create_node('lossy_server', context=ctx)
+        requests = []
+
+        async def handle(request, response):
+            requests.append(request)
+            if len(requests) == 1:
+                await Future()                   # the first answer never goes out
+            response.success, response.message = True, f'done, request {len(requests)}'
+            return response
+
+        server.create_service(Trigger, f'~/{service}', handle, callback_group=ReentrantCallbackGroup())
+        client = rclpy.create_node('caller', context=ctx)
+        executor = MultiThreadedExecutor(context=ctx)
+        executor.add_node(server)
+        executor.add_node(client)
+        threading.Thread(target=executor.spin, daemon=True).start()
+        ok, message = call_trigger(client, f'/lossy_server/{service}', timeout=3.0, executor=executor)
+        assert ok is outcome[0] and outcome[1] in message, message
+        assert len(requests) == asked
+        executor.shutdown(timeout_sec=1.0)
+    finally:
+        rclpy.shutdown(context=ctx)

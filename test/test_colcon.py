@@ -73,8 +73,6 @@ def test_installed_share_files(install):
     assert (share / 'package.xml').is_file()
     assert (share / 'config' / 'lumbar_brace.yaml').is_file()
     assert (prefix / 'share' / 'ament_index' / 'resource_index' / 'packages' / 'brace_control').is_file()
-    _, site, _ = install                      # brace_control.dds finds its profiles next to it
-    assert (site / 'brace_control' / 'fastdds_profiles.xml').is_file()
 
 
 @pytest.mark.parametrize('name', NODES + TOOLS)

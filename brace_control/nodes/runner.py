@@ -26,7 +26,6 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
 from ..config import ConfigError
-from ..dds import use_packaged_profiles
 
 __all__ = ['run_node', 'usage', 'make_executor', 'freeze_start_up_heap', 'EXIT_STARTUP', 'EXIT_CONFIG']
 
@@ -102,7 +101,6 @@ def run_node(factory: Callable[[], Node], *, executable: str, summary: str,
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    use_packaged_profiles()       # before the participant is made: brace_control.dds
     try:
         rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     except Exception as exc:  # noqa: BLE001 - rcl reports bad --ros-args as RCLError
