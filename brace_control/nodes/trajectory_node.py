@@ -59,6 +59,7 @@ from rclpy.node import Node
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
+from ..can.units import scaling_from_config
 from ..config import ConfigError
 from ..mechanisms import mechanism_from_config
 from ..trajectory import (FittsLaw, GoalEvent, GoalRequest, GoalState, Limits, PlanRejected,
@@ -117,7 +118,9 @@ class TrajectoryNode(Node):
             fitts=FittsLaw(a=traj['fitts_a'], b=traj['fitts_b'], w=traj['fitts_w']),
             fitts_axes=(0, 1) if kind in ('planar', 'xy') else None,
             lookahead=PLAN_LOOKAHEAD_S, pose_tolerance=tolerance,
-            settle_time=float(safety['settle_time']), report_timeout=float(safety['report_timeout']))
+            settle_time=float(safety['settle_time']), report_timeout=float(safety['report_timeout']),
+            # the success margin for what the encoders cannot resolve (TrajectoryRunner)
+            actuator_resolution=1.0 / scaling_from_config(self.cfg).counts_per_unit)
         # The runner is shared by the executor thread (subscriptions, service, timer) and the
         # planner thread: every runner call holds this lock; planning itself runs outside it.
         self._lock = threading.Lock()

@@ -12,8 +12,11 @@ reports (SAFETY.md 12, 16):
   :data:`SETTLE_CONFIRM_S` (a ring still creeping across the edge of the tolerance has not
   arrived: the estimate samples it, and a ring judged on its first sample inside may be
   outside again by the time the success is reported), with the mean of that window's
-  estimates plus twice their scatter inside too (a ring resting at the edge is not judged
-  on the estimate's noise);
+  estimates plus twice their uncertainty inside too: the window's scatter and what the
+  encoders cannot resolve at the goal (one count of reading and one of homing per
+  actuator, the estimator's own quantisation term, through the Jacobian: on the lumbar
+  brace's near-parallel legs 0.12 um of count is ~30 um of x). A ring resting at the edge
+  is not judged on the estimate's noise or its last count;
 * **aborted** when the driver rejected or stopped the motion (halt, disable, protective
   stop: the reason is the driver's), when the drives left the enabled state, when the
   ring did not follow (the estimate stayed off the goal: by how much, per coordinate), or
@@ -43,6 +46,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..mechanisms.pose_estimate import weighted_covariance
 from .base import MotionState, Trajectory
 from .limits import Limits
 from .minimum_jerk import FittsLaw
@@ -132,6 +136,8 @@ class _Goal:
     inside_since: float | None = None     # stamp of the first estimate of the run inside the tolerance
     #: the run of estimates inside the tolerance, (stamp, error per axis), signed
     inside: list[tuple[float, np.ndarray]] = field(default_factory=list)
+    #: 1-sigma per pose coordinate the encoders' quantisation leaves at the target
+    resolution: np.ndarray | None = None
 
 
 class TrajectoryRunner:
@@ -152,8 +158,11 @@ class TrajectoryRunner:
     def __init__(self, mech: 'Mechanism', limits: Limits, *, profile: Profile | str,
                  fitts: FittsLaw, fitts_axes: tuple[int, ...] | None = None,
                  lookahead: float = 0.1, pose_tolerance: np.ndarray | float = 0.002,
-                 settle_time: float = 0.5, report_timeout: float = 1.0) -> None:
+                 settle_time: float = 0.5, report_timeout: float = 1.0,
+                 actuator_resolution: float | None = None) -> None:
         self.mech = mech
+        #: m or rad of actuator per encoder count (``None``: not known, no resolution margin)
+        self.actuator_resolution = actuator_resolution
         self.limits = limits
         self.profile = Profile(profile)
         self.fitts = fitts
@@ -381,7 +390,10 @@ class TrajectoryRunner:
             while len(goal.inside) > 1 and goal.inside[1][0] <= stamp - SETTLE_CONFIRM_S + 1e-9:
                 goal.inside.pop(0)
             window = np.array([e for _, e in goal.inside])
-            if np.all(np.abs(window.mean(axis=0)) + 2.0 * window.std(axis=0) <= self.pose_tolerance):
+            if goal.resolution is None:
+                goal.resolution = self.resolution_sigma(goal.target)
+            sigma = np.hypot(window.std(axis=0), goal.resolution)
+            if np.all(np.abs(window.mean(axis=0)) + 2.0 * sigma <= self.pose_tolerance):
                 self._goal = None
                 return [GoalEvent(goal.goal_id, GoalState.SUCCEEDED, '', goal.target, goal.duration,
                                   goal.profile, {'final_error': err.tolist()})]
@@ -403,8 +415,13 @@ class TrajectoryRunner:
                 return [GoalEvent(goal.goal_id, GoalState.ABORTED,
                                   f'no pose estimate within {self.settle_time:g} s after the motion '
                                   'finished: where the platform is cannot be told')]
-            return [GoalEvent(goal.goal_id, GoalState.ABORTED, 'the platform did not follow: ' +
-                              self.describe_error(goal.best_error),
+            why = 'the platform did not follow: ' + self.describe_error(goal.best_error)
+            if np.all(goal.best_error <= self.pose_tolerance):
+                # inside, but never by the estimate's uncertainty (scatter, last count)
+                res = goal.resolution if goal.resolution is not None else self.resolution_sigma(goal.target)
+                why += ('; inside the tolerance by less than the estimate resolves (2 sigma of '
+                        f'the encoder counts: {self.describe_values(2.0 * res)})')
+            return [GoalEvent(goal.goal_id, GoalState.ABORTED, why,
                               values={'final_error': goal.best_error.tolist()})]
         if m is not None and m.tag == goal.tag:
             if not goal.started and now > m.t0 + self.driver_lag + self.report_timeout:
@@ -422,20 +439,52 @@ class TrajectoryRunner:
                                   f'{late:.2f} s of its planned end')]
         return []
 
-    def describe_error(self, err: np.ndarray) -> str:
-        """The final error per coordinate against the tolerance, in mm / deg where it helps."""
+    def resolution_sigma(self, pose: np.ndarray) -> np.ndarray:
+        """1-sigma per pose coordinate that the encoders' quantisation leaves at ``pose``:
+        per actuator ``res^2 / 6`` (a count of reading and a count of homing, uniform; the
+        estimator's eq. 3 without its force terms) through ``J`` (eq. 4,
+        :func:`~brace_control.mechanisms.pose_estimate.weighted_covariance`). Zeros without
+        :attr:`actuator_resolution` or where ``J`` cannot be evaluated."""
+        res = self.actuator_resolution
+        zeros = np.zeros(self.mech.dof)
+        if not res:
+            return zeros
+        try:
+            jac = np.atleast_2d(np.asarray(self.mech.jacobian(pose), dtype=float))
+        except ValueError:             # UnreachablePose, SingularPose: no margin to give
+            return zeros
+        if not np.isfinite(jac).all():
+            return zeros
+        cov = weighted_covariance(jac, np.full(jac.shape[0], res * res / 6.0))
+        return np.sqrt(np.clip(np.diag(cov), 0.0, None))
+
+    def _units(self) -> list[tuple[str, float, str, int]]:
+        """Per pose coordinate (name, scale, unit, decimals) for messages: mm / deg where it helps."""
         names = getattr(self.mech, 'pose_names', None) or (('x', 'y', 'theta') if self.mech.dof == 3
                                                              else tuple(f'q{i}' for i in range(self.mech.dof)))
-        parts = []
         angular = self.mech.dof == 3 and getattr(self.mech, 'pose_kind', 'planar') == 'planar'
-        for i, (e, tol) in enumerate(zip(err, self.pose_tolerance)):
+        out = []
+        for i in range(self.mech.dof):
             if angular and i == 2:
-                parts.append(f'{names[i]} off by {np.degrees(e):.3f} deg (tolerance {np.degrees(tol):.3f} deg)')
+                out.append((names[i], math.degrees(1.0), ' deg', 3))
             elif angular or self.mech.dof == 2:
-                parts.append(f'{names[i]} off by {e * 1e3:.2f} mm (tolerance {tol * 1e3:.2f} mm)')
+                out.append((names[i], 1e3, ' mm', 2))
             else:
-                parts.append(f'{names[i]} off by {e:.4g} (tolerance {tol:.4g})')
-        return '; '.join(parts)
+                out.append((names[i], 1.0, '', -1))
+        return out
+
+    @staticmethod
+    def _fmt(value: float, scale: float, unit: str, decimals: int) -> str:
+        return f'{value * scale:.{decimals}f}{unit}' if decimals >= 0 else f'{value:.4g}'
+
+    def describe_error(self, err: np.ndarray) -> str:
+        """The final error per coordinate against the tolerance, in mm / deg where it helps."""
+        return '; '.join(f'{n} off by {self._fmt(e, *u)} (tolerance {self._fmt(tol, *u)})'
+                         for (n, *u), e, tol in zip(self._units(), err, self.pose_tolerance))
+
+    def describe_values(self, values: np.ndarray) -> str:
+        """``x 0.06 mm, y 0.00 mm, ...``: one value per pose coordinate, in the same units."""
+        return ', '.join(f'{n} {self._fmt(v, *u)}' for (n, *u), v in zip(self._units(), values))
 
     # -- helpers -----------------------------------------------------------------------
     def _forward(self, q: np.ndarray) -> np.ndarray | None:
