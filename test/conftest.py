@@ -16,12 +16,13 @@ os.environ.setdefault('RCUTILS_LOGGING_BUFFERED_STREAM', '1')
 
 
 @pytest.fixture
-def ros():
-    """A fresh :class:`ros_helpers.Ros` (own Context and executor), shut down after the test."""
+def ros(_rcl_logging_stays_up):
+    """A fresh :class:`ros_helpers.Ros` (own executor, its nodes destroyed after the test) on
+    the session's one context, so on one DDS participant: see :func:`_rcl_logging_stays_up`."""
     # Imported here, not at the top, so rclpy loads only after the environment above is set
     # and only for tests that start nodes.
     from ros_helpers import Ros
-    r = Ros()
+    r = Ros(_rcl_logging_stays_up)
     try:
         yield r
     finally:
@@ -39,9 +40,19 @@ def _rcl_logging_stays_up():
     waiting on a mutex while delivering the writer's removal to another participant of this
     process, seen with py-spy). With this context open the count never reaches zero during
     the run; the process exit takes it down.
+
+    It is also the context of every ``ros`` fixture, with one node of its own (the anchor)
+    so that its DDS participant lives for the whole session: rmw_fastrtps deletes a
+    context's participant with its last node, and deleting a participant while another
+    participant of this process delivers discovery data to it can livelock inside Fast DDS
+    3.2 (seen in CI: ``DomainParticipant::set_listener`` spinning in ``destroy_participant``,
+    holding the GIL, while an ``on_writer_discovery`` callback waits for its mutex; gdb).
+    Tests that make contexts of their own still delete participants.
     """
     import rclpy
     from rclpy.context import Context
     keep = Context()
     rclpy.init(context=keep)
+    anchor = rclpy.create_node('test_session_anchor', context=keep)
     yield keep
+    anchor.destroy_node()

@@ -44,11 +44,18 @@ def params_args(path: str | Path = LUMBAR_YAML, **overrides: Any) -> list[str]:
 
 
 class Ros:
-    """A private rclpy context with one executor; nodes added to it are spun together."""
+    """One executor on an rclpy context; nodes added to it are spun together.
 
-    def __init__(self) -> None:
-        self.context = Context()
-        rclpy.init(context=self.context)
+    :param context: an initialised context shared with others (closing leaves it up);
+        ``None``: a private one, shut down on :meth:`close`.
+    """
+
+    def __init__(self, context: Context | None = None) -> None:
+        self._own_context = context is None
+        if context is None:
+            context = Context()
+            rclpy.init(context=context)
+        self.context = context
         self.executor = SingleThreadedExecutor(context=self.context)
         self.nodes: list[Node] = []
 
@@ -100,5 +107,6 @@ class Ros:
         self.executor.shutdown()
         for node in self.nodes:
             node.destroy_node()
-        rclpy.shutdown(context=self.context)
+        if self._own_context:
+            rclpy.shutdown(context=self.context)
 
