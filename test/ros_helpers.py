@@ -1,4 +1,4 @@
-"""rclpy helpers for node tests: a private Context per test, spinning until a condition.
+"""rclpy helpers for node tests: one executor per test on the session's context; spin until a condition.
 
 The ``ros`` fixture that yields a :class:`Ros` lives in ``conftest.py``; test modules take it as
 an argument and import from here only the helpers and constants they name.
@@ -102,6 +102,38 @@ class Ros:
         """Discovery: spin until ``publisher`` sees ``count`` subscriptions."""
         self.spin_until(lambda: publisher.get_subscription_count() >= count, timeout,
                         f'{count} subscriber(s) on {publisher.topic_name}')
+
+    def node_answers(self, probe: Node, name: str, timeout: float = 1.0) -> bool:
+        """Whether a live node called ``name`` answers ``/<name>/list_parameters`` within
+        ``timeout`` s (every rclpy node serves it while it spins).
+
+        The graph alone cannot tell: this context's one DDS participant lives for the whole
+        session, so a node whose process was killed stays in ``get_node_names()`` until its
+        participant's lease runs out (Fast DDS: 20 s)."""
+        from rcl_interfaces.srv import ListParameters
+        client = probe.create_client(ListParameters, f'/{name.lstrip("/")}/list_parameters')
+        try:
+            deadline = time.monotonic() + timeout
+            if not client.wait_for_service(timeout_sec=0.0):
+                self.spin_until(lambda: client.service_is_ready() or time.monotonic() > deadline,
+                                timeout + 1.0)
+            if not client.service_is_ready():
+                return False
+            future = client.call_async(ListParameters.Request(depth=1))
+            self.spin_until(lambda: future.done() or time.monotonic() > deadline, timeout + 1.0)
+            return future.done() and future.exception() is None
+        finally:
+            probe.destroy_client(client)
+
+    def wait_node_answers(self, probe: Node, name: str, timeout: float,
+                          stop: Callable[[], bool] = lambda: False) -> None:
+        """Ask :meth:`node_answers` again (1 s per try) until ``name`` answers or ``stop()``;
+        fail the test after ``timeout`` s."""
+        deadline = time.monotonic() + timeout
+        while not (stop() or self.node_answers(probe, name)):
+            if time.monotonic() > deadline:
+                pytest.fail(f'timed out after {timeout} s waiting for {name} to answer '
+                            f'/{name}/list_parameters')
 
     def close(self) -> None:
         self.executor.shutdown()

@@ -103,14 +103,16 @@ def test_cli_stops_cleanly_on_sigint_and_sigterm(ros, mode):
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
             probe = ros.node(f'probe_{sig.name.lower()}')
-            ros.spin_until(lambda: {'ik_node', 'kinetics_node'} <= set(probe.get_node_names())
-                           or proc.poll() is not None, timeout=20, what='nodes up')
+            for name in ('ik_node', 'kinetics_node'):
+                ros.wait_node_answers(probe, name, timeout=20, stop=lambda: proc.poll() is not None)
             assert proc.poll() is None, proc.communicate()[1][-2000:]
             proc.send_signal(sig)
             _, err = proc.communicate(timeout=30)
             assert proc.returncode == 0, err[-2000:]
-            ros.spin_until(lambda: not {'ik_node', 'kinetics_node'} & set(probe.get_node_names()),
-                           timeout=15, what='nodes gone')
+            # gone: no node of that name answers any more (the graph keeps a killed
+            # process's nodes for a while, see ros_helpers.Ros.node_answers)
+            alive = [n for n in ('ik_node', 'kinetics_node') if ros.node_answers(probe, n, 2.0)]
+            assert not alive, f'{alive} still answer after brace-bringup exited'
         finally:
             if proc.poll() is None:
                 proc.kill()

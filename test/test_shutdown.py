@@ -4,7 +4,7 @@
 
 Each node is started the way ``ros2 run brace_control <node>`` starts it (its module's
 ``main``, the device file as parameter file; the CAN driver with its simulated brace). It
-is "up" when a probe node sees it in the ROS graph and, for the driver, when it has
+is "up" when it answers a probe node's parameter request and, for the driver, when it has
 published its state (the drives booted); only then does it get the signal.
 """
 from __future__ import annotations
@@ -45,9 +45,10 @@ def test_node_process_stops_cleanly(ros, name, sig):
               if name == 'can_driver_node' else [])
     proc = _start(name)
     try:
-        ros.spin_until(lambda: (name in probe.get_node_names()
-                                and (name != 'can_driver_node' or bool(states)))
-                       or proc.poll() is not None, timeout=30, what=f'{name} up')
+        # up = it answers (a node of a killed process can stay in the graph: ros_helpers)
+        ros.wait_node_answers(probe, name, timeout=30, stop=lambda: proc.poll() is not None)
+        ros.spin_until(lambda: name != 'can_driver_node' or bool(states) or proc.poll() is not None,
+                       timeout=30, what=f'{name} state')
         assert proc.poll() is None, f'{name} ended before it was up:\n' + proc.communicate()[1][-3000:]
         proc.send_signal(sig)
         _, err = proc.communicate(timeout=30)
