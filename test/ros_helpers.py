@@ -7,8 +7,9 @@ timeout that fails the test with a message.
 """
 from __future__ import annotations
 
+import contextlib
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +34,30 @@ def wait_until(predicate: Callable[[], bool], timeout: float, what: str) -> None
         if time.monotonic() > deadline:
             raise AssertionError(f'timed out waiting for {what}')
         time.sleep(0.02)
+
+
+@contextlib.contextmanager
+def stack_in_process(device: str | Path, out: Path, extra_args: Sequence[str]) -> Iterator[Any]:
+    """The whole stack in this process (:class:`~brace_control.bringup.BringUp`) on a context of
+    its own, for ``device`` as the demo prepares it (into ``out``); shut down after."""
+    from brace_control.bringup import BringUp
+    from brace_control.demo import prepare_config
+    path, _ = prepare_config(str(device), out)
+    ctx = Context()
+    rclpy.init(context=ctx)
+    b = BringUp(path, context=ctx, extra_args=list(extra_args)).start()
+    try:
+        yield b
+    finally:
+        b.shutdown()
+        rclpy.shutdown(context=ctx)
+
+
+def home_and_enable(b: Any, timeout: float = 15.0) -> None:
+    """``~/home`` then ``~/enable`` on the CAN driver of a :func:`stack_in_process`."""
+    for what in ('home', 'enable'):
+        ok, msg = b.call(f'/can_driver_node/{what}', timeout=timeout)
+        assert ok, f'{what}: {msg}'
 
 
 def params_args(path: str | Path = LUMBAR_YAML, **overrides: Any) -> list[str]:

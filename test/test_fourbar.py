@@ -177,6 +177,26 @@ def test_inverse_projects_points_within_tolerance(trainer):
     assert trainer.in_workspace(off) and not trainer.in_workspace(p + 2e-3 * normal)
 
 
+def test_constrain_motion_keeps_a_motion_on_the_curve(trainer):
+    """A point off the curve (up to 2 mm: beyond the local search's 1 mm too) goes to the
+    curve point nearest it, and a velocity to its component along the curve there. Oracle:
+    the coupler point of the circle intersection (``linkage_points``); the nearest point
+    from a normal offset: ``p + d n`` has ``p`` as its nearest point for small ``d``."""
+    rng = np.random.default_rng(7)
+    lo, hi = (float(v[0]) for v in trainer.actuator_limits)
+    for th in rng.uniform(lo + 0.05, hi - 0.05, 60):
+        p = np.array(_xy(linkage_points(float(th), trainer.L1, trainer.L2, trainer.L3, trainer.L4,
+                                        trainer.BP, 1.0)[2]))
+        d1, _ = fd(lambda a: linkage_points(a, trainer.L1, trainer.L2, trainer.L3, trainer.L4,
+                                            trainer.BP, 1.0)[2], float(th), 1e-4)
+        t = np.array(_xy(d1)) / abs(d1)
+        n = np.array([-t[1], t[0]])
+        for off in (1e-6, 3e-4, 2e-3):
+            x, v = trainer.constrain_motion(p + off * n, 0.7 * t + 0.3 * n)
+            assert x == pytest.approx(p, abs=1e-9), (th, off)
+            assert v == pytest.approx(0.7 * t, abs=1e-7)
+
+
 def test_unreachable_point_rejected_with_its_distance(trainer):
     with pytest.raises(UnreachablePose, match=r'mm from the coupler curve') as info:
         trainer.inverse([0.10, 0.10])

@@ -18,17 +18,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import rclpy
 import yaml
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped, WrenchStamped
-from rclpy.context import Context
 
 from brace_control.bringup import BringUp
-from brace_control.demo import prepare_config
 from brace_control.nodes import topics
 from brace_control.nodes.msgs import pose_msg, status_values
-from ros_helpers import wait_until as wait
+from ros_helpers import home_and_enable, stack_in_process, wait_until as wait
 from seed001 import leg_lengths as legs, leg_matrix
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -169,22 +166,12 @@ class Truth:
 
 @pytest.fixture(scope='module')
 def stack(tmp_path_factory):
-    out = tmp_path_factory.mktemp('device')
-    path, _ = prepare_config(str(LUMBAR), out)
-    ctx = Context()
-    rclpy.init(context=ctx)
     extra = ['-p', f'can.channel:=inter{next(_channels)}', '-p', 'can.sync_spin_us:=0',
              '-p', 'sim.truth_rate_hz:=100.0']
-    b = BringUp(path, context=ctx, extra_args=extra).start()
-    try:
+    with stack_in_process(LUMBAR, tmp_path_factory.mktemp('device'), extra) as b:
         truth = Truth(b.helper)
-        for what in ('home', 'enable'):
-            ok, msg = b.call(f'/can_driver_node/{what}', timeout=15)
-            assert ok, f'{what}: {msg}'
+        home_and_enable(b)
         yield b, truth
-    finally:
-        b.shutdown()
-        rclpy.shutdown(context=ctx)
 
 
 def trigger(b: BringUp, name: str) -> tuple[bool, str]:

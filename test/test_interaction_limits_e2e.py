@@ -33,20 +33,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import rclpy
 import yaml
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
-from rclpy.context import Context
 from rclpy.time import Time
 from sensor_msgs.msg import JointState
 
 from brace_control.bringup import BringUp
-from brace_control.demo import prepare_config
 from brace_control.nodes import topics
 from brace_control.nodes.msgs import pose_msg, status_values
 from brace_control.sim.brace import REST_STREAM_CATCH_UP
-from ros_helpers import wait_until as wait
+from ros_helpers import home_and_enable, stack_in_process, wait_until as wait
 from seed001 import leg_lengths as legs, leg_matrix
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -182,24 +179,14 @@ class Record:
 
 @pytest.fixture(scope='module')
 def stack(tmp_path_factory):
-    out = tmp_path_factory.mktemp('device')
-    path, _ = prepare_config(str(LUMBAR), out)
-    ctx = Context()
-    rclpy.init(context=ctx)
     extra = ['-p', f'can.channel:=limits{next(_channels)}', '-p', 'can.sync_spin_us:=0',
              '-p', 'sim.truth_rate_hz:=100.0',
              '-p', f'safety.force_limit:={FORCE_LIMIT_N}', '-p', f'safety.soft_force_limit:={SOFT_FORCE_LIMIT_N}',
              '-p', f'safety.release_force:={0.4 * SOFT_FORCE_LIMIT_N}']
-    b = BringUp(path, context=ctx, extra_args=extra).start()
-    try:
+    with stack_in_process(LUMBAR, tmp_path_factory.mktemp('device'), extra) as b:
         rec = Record(b.helper)
-        for what in ('home', 'enable'):
-            ok, msg = b.call(f'/can_driver_node/{what}', timeout=15)
-            assert ok, f'{what}: {msg}'
+        home_and_enable(b)
         yield b, rec
-    finally:
-        b.shutdown()
-        rclpy.shutdown(context=ctx)
 
 
 class Patient:

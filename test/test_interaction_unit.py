@@ -26,7 +26,7 @@ LUMBAR = ROOT / 'config' / 'lumbar_brace.yaml'
 #: its velocity as feed-forward (60B1h), so the CSP loop x' = v_ff + Kp (r - x) tracks it
 DESIGN_LAG = 1e-6
 DEVICES = ['lumbar_brace', 'lumbar_brace_v2', 'neck_brace_4rpr', 'neck_brace_3rrr',
-           'neck_brace_2r', 'shoulder', 'continuum']
+           'neck_brace_2r', 'shoulder', 'continuum', 'upper_limb_trainer']
 
 
 def controller(device: str = 'lumbar_brace', **inter: object) -> AdmittanceController:
@@ -286,8 +286,101 @@ def test_every_device_follows_a_push_through_the_protocol(device: str) -> None:
         x, v = ctl.step(push)
     mech.inverse(x)
     moved = x - mech.home_pose
+    if hasattr(mech, 'path_direction'):
+        # one crank: the handle follows the push's component along its path
+        along = float(mech.path_direction(mech.home_pose) @ -push)
+        assert along != 0.0 and float(moved @ -push) > 0.0, f'{device}: did not follow the push'
+        return
     for i in range(mech.dof):
         if i in axes:
             assert moved[i] > 0.0, f'{device}: axis {i} did not follow the push'
         else:
             assert moved[i] == 0.0
+
+
+# ------------------------------------------------------------------ the trainer: along its path
+def _trainer_curve_oracle():
+    """The coupler point of the trainer's four-bar for a crank angle, from the circle
+    intersection written out here (the open assembly, P on AB extended by BP = L3), and
+    the crank angle of the curve point nearest a point (dense grid, then golden section)."""
+    from scipy.optimize import minimize_scalar
+    cfg = load_device_config(ROOT / 'config' / 'upper_limb_trainer.yaml')
+    m = cfg['mechanism']
+    l2 = float(m['crank'])
+    l1, l3, l4, bp = (float(m[k]) for k in ('ground', 'coupler', 'rocker', 'coupler_extension'))
+    assert m.get('branch', 'open') == 'open'
+
+    def point(th: float) -> np.ndarray:
+        a = l2 * complex(math.cos(th), math.sin(th))
+        o4 = complex(l1, 0.0)
+        d = abs(o4 - a)
+        x = (l3 ** 2 - l4 ** 2 + d ** 2) / (2 * d)
+        u = (o4 - a) / d
+        b = a + x * u + math.sqrt(l3 ** 2 - x * x) * 1j * u
+        p = b + bp * (b - a) / l3
+        return np.array([p.real, p.imag])
+
+    grid = np.linspace(-math.pi, math.pi, 3601)
+    pts = np.array([point(float(t)) for t in grid])
+
+    def nearest(x: np.ndarray) -> tuple[float, float]:
+        i = int(np.argmin(np.linalg.norm(pts - x, axis=1)))
+        r = minimize_scalar(lambda t: float(np.linalg.norm(point(t) - x)),
+                            bounds=(grid[i] - 0.01, grid[i] + 0.01), method='bounded',
+                            options={'xatol': 1e-12})
+        return float(r.x), float(r.fun)
+    return point, nearest
+
+
+def test_the_trainer_handle_moves_along_its_path_as_a_mass_damper_in_arc_length() -> None:
+    """Zero-torque on the one-crank trainer: the hand pushes the handle along the coupler
+    curve with a constant force F (measured: the brace's wrench on the hand, -F along the
+    oracle's tangent). The handle stays on the curve (oracle: circle intersection), and
+    its arc length follows M s'' + D s' = F in closed form, as a free axis would."""
+    from scipy.integrate import quad
+    ctl = controller('upper_limb_trainer')
+    mech = ctl.mechanism
+    point, nearest = _trainer_curve_oracle()
+    home = np.asarray(mech.home_pose, dtype=float)
+    th0, d0 = nearest(home)
+    assert d0 < 1e-9
+    ctl.start(home)
+    M, D, dt, F = ctl.p.mass[0], ctl.p.damping[0], ctl.p.dt, 2.0
+    h = 1e-6
+
+    def tangent(th: float) -> np.ndarray:
+        t = (point(th + h) - point(th - h)) / (2 * h)
+        return t / np.linalg.norm(t)
+
+    th = th0
+    for k in range(1, 101):
+        x, v = ctl.step(-F * tangent(th))
+        th, dist = nearest(x)
+        assert dist < 1e-8, f'step {k}: the handle left the coupler curve by {dist:.3g} m'
+        assert abs(float(v @ tangent(th)) - np.linalg.norm(v)) < 1e-9 * max(1.0, np.linalg.norm(v))
+        t = k * dt
+        s_exact = F / D * (t - M / D * (1 - math.exp(-D * t / M)))
+        arc = abs(quad(lambda a: float(np.linalg.norm((point(a + h) - point(a - h)) / (2 * h))), th0, th)[0])
+        assert arc == pytest.approx(s_exact, rel=2e-3, abs=1e-7), f'step {k}'
+        assert np.linalg.norm(v) == pytest.approx(F / D * (1 - math.exp(-D * t / M)), rel=2e-3)
+
+
+def test_a_trainer_goal_is_judged_by_its_component_along_the_path() -> None:
+    """The handle's capacity is a force along its path: a goal beyond it is rejected
+    naming that component; a goal normal to the path asks nothing of the motor."""
+    ctl = controller('upper_limb_trainer')
+    mech = ctl.mechanism
+    _, nearest = _trainer_curve_oracle()
+    home = np.asarray(mech.home_pose, dtype=float)
+    ctl.start(home)
+    cap = float(ctl.capacity(home)[0])
+    t = np.asarray(mech.path_direction(home))
+    normal = np.array([-t[1], t[0]])
+    ctl.set_goal(15.0 * normal)                      # along the path: 0
+    for _ in range(50):
+        x, v = ctl.step(np.zeros(2))
+    assert nearest(x)[1] < 1e-8 and np.linalg.norm(x - home) < 1e-3
+    small = controller('upper_limb_trainer', max_goal_wrench=[1e3, 1e3])
+    small.start(home)
+    with pytest.raises(GoalRejected, match='along the path exceeds the wrench capacity'):
+        small.set_goal((cap + 1.0) * t)

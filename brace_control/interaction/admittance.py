@@ -37,7 +37,6 @@ stiffness: :mod:`brace_control.interaction.stability` and docs/interaction.md.
 from __future__ import annotations
 
 import enum
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -92,7 +91,8 @@ class AdmittanceParams:
     :param goal_rate: how fast the wrench the controller tracks moves to a new goal, per
         pose axis (N/s, N·m/s; inf = a step): a step goal is followed as a ramp
         (reference shaping), so that the ring never runs into the legs' deceleration limit
-        with the wrench still rising (docs/interaction.md, "Wrench goals").
+        with the wrench still rising (docs/interaction.md, "Wrench goals"). The ramp is
+        one vector: the slowest axis sets its pace, the goal's direction is kept.
     """
 
     mass: np.ndarray
@@ -180,6 +180,9 @@ class AdmittanceController:
         self.velocity_limited = 0
         self.stop_reason = ''
         self._decay = np.exp(-params.damping * params.dt / params.mass)
+        #: a mechanism whose mobility is below its pose's length (the four-bar: one crank,
+        #: a point on a curve) keeps the virtual motion on what it can reach
+        self._constrain = getattr(mechanism, 'constrain_motion', None)
 
     # ------------------------------------------------------------------ mode
     def start(self, pose: Sequence[float]) -> None:
@@ -224,13 +227,37 @@ class AdmittanceController:
             raise GoalRejected(f'wrench goal on axis {i} = {w[i]:g} exceeds interaction.max_goal_wrench '
                                f'{self.p.max_goal_wrench[i]:g}')
         cap = self.capacity(self.x)
-        if cap is not None and cap.shape == w.shape:
+        along = self._along_path(self.x, w) if cap is not None and cap.shape != w.shape else None
+        if along is not None and cap is not None and along.shape == cap.shape:
+            if np.any(np.abs(along) > cap):
+                raise GoalRejected(f'wrench goal {w.tolist()}: {float(along[0]):.3g} along the path exceeds '
+                                   f'the wrench capacity {float(cap[0]):.3g} at pose {np.round(self.x, 5).tolist()}')
+        elif cap is not None and cap.shape == w.shape:
             short = np.abs(w) > cap
             if np.any(short):
                 i = int(np.flatnonzero(short)[0])
                 raise GoalRejected(f'wrench goal on axis {i} = {w[i]:g} exceeds the wrench capacity '
                                    f'{cap[i]:.3g} at pose {np.round(self.x, 5).tolist()}')
         self.goal = w
+
+    def _along_path(self, pose: np.ndarray, w: np.ndarray) -> np.ndarray | None:
+        """The component of ``w`` along the path of a one-mobility mechanism (its
+        capacity axis), or None for the others."""
+        direction = getattr(self.mechanism, 'path_direction', None)
+        if direction is None:
+            return None
+        return np.array([float(np.asarray(direction(pose), dtype=float) @ w)])
+
+    def constrained(self, x: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(x, v)`` put back on what the mechanism can reach (its pose manifold and the
+        velocities tangent to it); unchanged for a mechanism that moves every pose axis."""
+        if self._constrain is None:
+            return x, v
+        try:
+            cx, cv = self._constrain(x, v)
+        except ValueError:
+            return x, v
+        return np.asarray(cx, dtype=float), np.asarray(cv, dtype=float)
 
     def capacity(self, pose: np.ndarray) -> np.ndarray | None:
         """The mechanism's wrench capacity at ``pose`` with ``actuator.max_force`` (per
@@ -271,9 +298,11 @@ class AdmittanceController:
                           f'> {self.p.soft_force_limit:.1f}')
                 self._brake()
                 raise LimitStop(self.stop_reason)
-        rate = self.p.goal_rate if self.p.goal_rate is not None else np.inf
-        self.goal_now = self.goal_now + np.clip(self.goal - self.goal_now, -rate * self.p.dt, rate * self.p.dt)
+        self.goal_now = self.goal_now + self._ramp_step(self.goal - self.goal_now)
         e = np.where(self.p.force_axes, self.goal_now - w, 0.0)
+        # on a path (one crank): only the error's component along it can move the handle; the
+        # normal part is the frame's (integrated, it would drift the handle along a curved path)
+        e = self.constrained(self.x, e)[1]
         p = self._decay
         v_inf = e / self.p.damping
         v_new = np.where(self.p.force_axes, self.v * p + (1.0 - p) * v_inf, 0.0)
@@ -290,6 +319,7 @@ class AdmittanceController:
             x_new = self.x + 0.5 * (self.v + v_new) * self.p.dt
         else:
             x_new = self.x + dx
+        x_new, v_new = self.constrained(x_new, v_new)
         reason = self._check_ahead(x_new, v_new)
         if reason:
             self.stop(reason)
@@ -297,6 +327,18 @@ class AdmittanceController:
             raise LimitStop(reason)
         self.x, self.v = x_new, v_new
         return self.x.copy(), self.v.copy()
+
+    def _ramp_step(self, diff: np.ndarray) -> np.ndarray:
+        """This period's share of the way to the goal: ``diff`` scaled as a whole so that no
+        axis moves faster than its ``goal_rate`` (the goal's direction is kept: a ramp per
+        axis on its own would turn a goal normal to the trainer's path into a push along it
+        while the axes ramp)."""
+        if self.p.goal_rate is None or not np.any(diff):
+            return diff
+        with np.errstate(divide='ignore', invalid='ignore'):
+            ratio = float(np.max(np.where(np.isfinite(self.p.goal_rate),
+                                          np.abs(diff) / (self.p.goal_rate * self.p.dt), 0.0)))
+        return diff / ratio if ratio > 1.0 else diff
 
     def _name(self, i: int) -> str:
         names = getattr(self.mechanism, 'actuator_names', None)
@@ -322,7 +364,7 @@ class AdmittanceController:
         velocity vector shrinks as a whole, the most limited axis setting the pace): after
         ``T = max_i |v_i| / a_i``, at ``x + v T / 2``."""
         t_stop = float(np.max(np.abs(v) / self.p.stop_deceleration))
-        return x + 0.5 * v * t_stop
+        return self.constrained(x + 0.5 * v * t_stop, np.zeros_like(v))[0]
 
     def _check_ahead(self, x: np.ndarray, v: np.ndarray) -> str:
         """The reason the pose reached when braking from ``(x, v)`` is not allowed, or ''."""
@@ -369,7 +411,8 @@ class AdmittanceController:
             room = np.where(speed > 0.0, self.p.stop_deceleration * self.p.dt / speed, np.inf)
         factor = max(0.0, 1.0 - float(np.min(room)))
         v_new = self.v * factor
-        self.x = self.x + 0.5 * (self.v + v_new) * self.p.dt
-        self.v = v_new
+        self.x, self.v = self.constrained(self.x + 0.5 * (self.v + v_new) * self.p.dt, v_new)
+        if factor == 0.0:
+            self.v = np.zeros(self.dof)
         if factor == 0.0:
             self.mode = Mode.IDLE

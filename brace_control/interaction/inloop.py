@@ -267,6 +267,6 @@ class InLoopAdmittance:
             return x, v
         self.accel_limited += 1
         v_new = v0 + dv / ratio
-        x_new = x0 + 0.5 * (v0 + v_new) * self.dt
+        x_new, v_new = self.controller.constrained(x0 + 0.5 * (v0 + v_new) * self.dt, v_new)
         self.controller.x, self.controller.v = x_new.copy(), v_new.copy()
         return x_new, v_new

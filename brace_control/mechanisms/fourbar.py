@@ -486,6 +486,47 @@ class HoekenFourBar(MechanismBase):
                 best_t, best_d = th, d
         return self._wrap_q(best_t), float(best_d)
 
+    def _nearest_local(self, pt: np.ndarray, reach: float = 1e-3) -> float | None:
+        """The crank angle of the curve point nearest ``pt`` when ``pt`` is within ``reach``
+        (m) of the curve, by Newton on ``(P - pt) . P' = 0`` from eq. 3.12's root (the crank
+        angle putting ``A`` at ``AP`` from ``pt`` that best closes the loop); None when there
+        is no such root, Newton does not settle, or the point is farther: then the global
+        :meth:`nearest_on_curve` (a few times slower) decides."""
+        target = complex(pt[0], pt[1])
+        r = abs(target)
+        if r == 0.0:
+            return None
+        c = (r * r + self.L2 ** 2 - self.AP ** 2) / (2.0 * self.L2 * r)
+        if abs(c) > 1.0:
+            return None
+        phi, acc = math.atan2(pt[1], pt[0]), math.acos(c)
+        th, best = None, math.inf
+        for cand in (phi + acc, phi - acc):
+            a = self.L2 * complex(math.cos(cand), math.sin(cand))
+            b = a + (target - a) * (self.L3 / self.AP)
+            if _cross(np.array(self.L1 - a), np.array(b - a)) * self._sigma <= 0.0:
+                continue
+            res = abs(abs(b - self.L1) - self.L4)
+            if res < best:
+                th, best = cand, res
+        if th is None:
+            return None
+        for _ in range(8):
+            p, dp, ddp = self._curve_scalar(th)
+            rr = p - target
+            hess = abs(dp) ** 2 + (rr.conjugate() * ddp).real
+            if hess <= 0.0:
+                return None
+            step = -(rr.conjugate() * dp).real / hess
+            th += max(-0.05, min(0.05, step))
+            if abs(step) < 1e-13:
+                break
+        else:
+            return None
+        if abs(self._curve_scalar(th)[0] - target) > reach:
+            return None
+        return self._wrap_q(th)
+
     def inverse(self, pose: Sequence[float]) -> np.ndarray:
         """Crank angle ``[theta2]`` (rad, in ``[lo, lo + 2 pi)``) putting ``P`` at ``pose = (x, y)``.
 
@@ -826,6 +867,32 @@ class HoekenFourBar(MechanismBase):
         """
         t = self.tangent(pose)
         return (t / float(t @ t)).reshape(1, 2)
+
+    def path_direction(self, pose: Sequence[float]) -> np.ndarray:
+        """The unit tangent ``t / |t|`` of the coupler curve at ``pose`` (the direction of
+        increasing crank angle; ``(0, 0)`` at a dead point of the path)."""
+        t = self.tangent(pose)
+        norm = math.hypot(t[0], t[1])
+        return t / norm if norm > 0.0 else np.zeros(2)
+
+    def constrain_motion(self, pose: Sequence[float], velocity: Sequence[float]
+                         ) -> tuple[np.ndarray, np.ndarray]:
+        """A motion of ``P`` kept on the coupler curve (mobility 1): the curve point nearest
+        ``pose`` and the component of ``velocity`` along the curve there.
+
+        For a model that moves the pose coordinates freely (the admittance, braking): a step
+        along the tangent leaves the curve by its curvature; this puts it back.
+        """
+        pt = as_vector(pose, 2, 'pose')
+        vel = as_vector(velocity, 2, 'velocity')
+        theta = self._nearest_local(pt)
+        if theta is None:
+            theta, _ = self.nearest_on_curve(pt)
+        p, dp, _ = self._curve_scalar(theta)
+        t = np.array([dp.real, dp.imag])
+        tt = float(t @ t)
+        v = t * (float(t @ vel) / tt) if tt > 0.0 else np.zeros(2)
+        return np.array([p.real, p.imag]), v
 
     def wrench(self, pose: Sequence[float], forces: Sequence[float]) -> np.ndarray:
         """Force ``(Fx, Fy)`` (N) the crank torque makes the (static, massless) linkage apply at ``P``.
