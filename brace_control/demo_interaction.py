@@ -170,6 +170,11 @@ def plan_script(config: Any, *, frequency_hz: float = 0.2, periods: int = 2) -> 
     max_speed = SWAY_SPEED_SHARE * float(cfg['trajectory'].get('limit_margin', 0.8)) \
         * float(cfg.get_path('actuator.max_velocity'))
     free = np.flatnonzero(axes)
+    # one crank (the trainer): the hand sways along the path, SWAY's first amplitude along the
+    # tangent at the centre (put on the curve), in phase on both axes
+    on_path = getattr(mech, 'path_direction', None) is not None and np.all(axes)
+    if on_path:
+        ph = np.zeros(dof)
     for scale in (1.0, 0.5, 0.25):
         amp = np.where(axes, np.asarray(SWAY[kind], dtype=float), 0.0) * scale
         steps = np.array([0.0, -0.5, 0.5, -1.0, 1.0, -1.5, 1.5, -2.0, 2.0, -3.0, 3.0])
@@ -178,6 +183,12 @@ def plan_script(config: Any, *, frequency_hz: float = 0.2, periods: int = 2) -> 
         for g in grid:
             centre = rest.copy()
             centre[free] += g * np.asarray(SWAY[kind], dtype=float)[free]
+            if on_path:
+                try:
+                    centre = np.asarray(mech.constrain_motion(centre, np.zeros(dof))[0], dtype=float)
+                    amp = scale * float(SWAY[kind][0]) * np.asarray(mech.path_direction(centre), dtype=float)
+                except ValueError:
+                    continue
             sway = centre + amp * np.sin(wt + ph)
             if not _feasible(mech, sway, min_cap, max_force, amp * w * np.cos(wt + ph), max_speed):
                 continue
@@ -207,6 +218,12 @@ def plan_script(config: Any, *, frequency_hz: float = 0.2, periods: int = 2) -> 
         pass
     step = np.zeros(dof)
     step[k] = value
+    if on_path:
+        # along the path (its normal part would be the frame's): a tenth of the hand's
+        # stiffness times the sway amplitude, within the limits above
+        hand = float(np.max(np.diag(np.reshape(np.asarray(sim.get('stiffness', [300.0]), dtype=float),
+                                                (dof, dof))))) if 'stiffness' in sim else 300.0
+        step = min(value, hand * float(np.linalg.norm(amp))) * np.asarray(mech.path_direction(centre), dtype=float)
     return Script(rest, centre, amp, ph, float(frequency_hz), int(periods), step, k)
 
 

@@ -146,3 +146,27 @@ def test_interaction_report_numbers_agree_with_the_recorded_truth(demo):
     assert report['step']['final_mean'] == pytest.approx(final, abs=0.01)
     # what the truth shows about the controller: it holds the goal at the step's end
     assert abs(final - g) < 0.05 * g
+
+
+DEVICES = ('lumbar_brace', 'lumbar_brace_v2', 'neck_brace_4rpr', 'neck_brace_3rrr', 'neck_brace_2r',
+           'shoulder', 'continuum', 'upper_limb_trainer')
+
+
+@pytest.mark.parametrize('device', DEVICES)
+def test_every_device_has_a_session_whose_sway_it_can_follow(device):
+    """``make demo MODE=interaction DEVICE=<any>``: the scripted sway moves the force axes
+    and every pose of it is one the device reaches (its inverse kinematics). The trainer's
+    hand sways along its path: the amplitude is the path's tangent at the centre, 10 mm."""
+    from brace_control.demo_interaction import plan_script
+    from brace_control.mechanisms import load_mechanism
+    path = Path(__file__).resolve().parent.parent / 'config' / f'{device}.yaml'
+    script = plan_script(path)
+    mech = load_mechanism(path)
+    assert np.any(script.amplitude)
+    for u in np.linspace(0.0, 1.0, 49):
+        mech.inverse(script.centre + script.amplitude * np.sin(2.0 * np.pi * u + script.phase))
+    if device == 'upper_limb_trainer':
+        t = np.asarray(mech.tangent(script.centre))
+        a = script.amplitude
+        assert abs(a[0] * t[1] - a[1] * t[0]) < 1e-12 and np.linalg.norm(a) == pytest.approx(0.010)
+        assert abs(float(script.step @ np.array([-t[1], t[0]]))) < 1e-12     # along the path too
