@@ -1023,3 +1023,38 @@ def test_relieve_refuses_a_fault_it_cannot_back_off_from(rig):
     with pytest.raises(DriverOperationError, match='cannot relieve'):
         master.relieve()
     sim.drive(2).heartbeat_silenced = False
+
+
+def test_a_loaded_stop_on_rigid_rotary_joints_is_relieved():
+    """SAFETY.md 15 on the 2R neck brace: its joints are modelled rigid (actuator.stiffness
+    1e7 N·m/rad), so a relief paced by the legs' stiffness alone crawled at micro-radians per
+    second and timed out with the head still pushed. The head's rest moves 40 mm (800 N/m:
+    ~32 N at the support point) while the brace holds: the joint torques pass the force
+    limit (2 N·m here), a protective stop latches, recover is refused; relieve swings the
+    joints back until the TRUE torques (the simulator's) are below the release force, and
+    recover then succeeds."""
+    import copy
+    cfg = copy.deepcopy(load_device_config('config/neck_brace_2r.yaml'))
+    cfg['safety'].update({'force_limit': 2.0, 'soft_force_limit': 1.6, 'release_force': 0.4})
+    channel = f'cantest-{os.getpid()}-{next(_ids)}'
+    sim = SimulatedBrace(cfg, channel=channel)
+    master = BraceMaster.from_device_config(cfg, channel=channel)
+    try:
+        master.boot()
+        master.home()
+        master.enable()
+        rest = np.asarray(cfg['sim']['rest_pose'], float)
+        sim.set_rest_pose(rest + np.array([0.0, 0.04]))
+        wait_for(_latched(master, FaultKind.FORCE_LIMIT), 2.0, 'force limit')
+        wait_for(lambda: stopped(master), 1.0, 'protective stop')
+        _recover_refused(master, FaultKind.FORCE_LIMIT)
+        assert np.abs(sim.truth().forces).max() > 2.0
+        message = master.relieve()
+        assert 'relieved' in message and 'mrad' in message, message
+        assert np.abs(sim.truth().forces).max() < 0.4, (sim.truth().forces, message)
+        _recover_ok(master)
+        master.enable()
+        assert master.state is MasterState.ENABLED
+    finally:
+        master.shutdown()
+        sim.shutdown()

@@ -37,7 +37,7 @@ from brace_control.mechanisms.spherical import euler_rate_matrix
 
 from brace_control.bag import replay
 from brace_control.exercise import write_goal_bag
-from brace_control.nodes.msgs import pose_from_msg
+from brace_control.nodes.msgs import pose_from_msg, pose_msg
 from test_e2e import _channels, _extra_args, process_bring_up
 
 pytestmark = [pytest.mark.ros, pytest.mark.e2e, pytest.mark.slow]
@@ -189,4 +189,36 @@ def test_v2_moves_the_ring_15_mm_sideways_against_the_body():
             with probe.lock:
                 true = pose_from_msg(probe.sim_poses[-1], mechanism=mech)
             assert (true[0] - home[0]) / dx >= 0.9, (dx, true)
+        assert probe.stops() == [], probe.stops()
+
+
+def test_trainer_goals_on_the_curved_return_stroke_reach_the_truth():
+    """Upper-limb trainer, each node its own process: goals on the bend of the coupler curve
+    (crank 60, 30, 130 and 70 deg; the straight stroke is 90-270 deg) used to be rejected as
+    'unreachable', the straight pose line between them leaving the curve. Planned along the
+    curve, each succeeds, and the simulator's TRUE crank (``/brace/sim/joint_states``) is at
+    the crank angle the goal was made from (the loop closure written here,
+    ``_fourbar_point``), the TRUE handle (``/brace/sim/pose``) within ``pose_tolerance`` of
+    the goal. The goals are statically feasible against the simulated arm (300 N/m about
+    home: at most 1.3 N·m on the crank, soft limit 4 N·m)."""
+    device_file = CONFIG / 'upper_limb_trainer.yaml'
+    cfg = load_device_config(device_file)
+    mech = mechanism_from_config(cfg)
+    frame = str(cfg.get('base_frame'))
+    tol = np.asarray(cfg['safety']['pose_tolerance'], float)
+    count = _resolution(cfg)
+    with process_bring_up(device_file, _extra_args()) as (group, node, probe):
+        for k, deg in enumerate((60.0, 30.0, 130.0, 70.0), start=1):
+            goal = _fourbar_point(cfg, deg * DEG)
+            probe.goal_pub.publish(pose_msg(goal, frame_id=frame, kind='xy',
+                                            stamp=node.get_clock().now().to_msg()))
+            probe.wait(lambda: len(probe.terminal()) >= k, 30, f'the goal at crank {deg} deg to end')
+            end = probe.terminal()[-1]
+            assert end['state'] == 'succeeded', (deg, end)
+            probe.wait_fresh(probe.sim_joints, 3, 5, 'true joint states')
+            with probe.lock:
+                crank = float(probe.sim_joints[-1].position[0])
+                true = pose_from_msg(probe.sim_poses[-1], mechanism=mech)
+            assert abs(crank - deg * DEG) <= count + 1e-5, (deg, math.degrees(crank))
+            assert np.all(np.abs(true - goal) <= tol), (deg, true, goal)
         assert probe.stops() == [], probe.stops()

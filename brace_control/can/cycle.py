@@ -49,6 +49,10 @@ FAULT_BRAKE_LIMIT_S = 1.0
 RPDO_REFRESH = 50
 #: a relief's force gain as a share of the stiffest direction's one-cycle limit
 RELIEF_GAIN = 0.2
+#: the slowest a relief moves, as a share of its speed: the gain is set by the legs'
+#: stiffness, but what resists a relief is the body through the mechanism, far softer (a
+#: rotary joint modelled rigid, 1e7 N·m/rad, would crawl at micro-radians per second)
+RELIEF_MIN_SHARE = 0.25
 
 
 class CycleMixin:
@@ -346,6 +350,8 @@ class CycleMixin:
                 fastest = float(np.max(np.abs(v)))
                 if fastest > relief.speed:
                     v = v * (relief.speed / fastest)
+                elif 0.0 < fastest < RELIEF_MIN_SHARE * relief.speed:
+                    v = v * (RELIEF_MIN_SHARE * relief.speed / fastest)
                 ex.set_stream(ex.q + v * self.config.period, v, t_wake)
             elif ex.state is not ExecutionState.HOLD and not ex.braking:
                 ex.stream_stale()

@@ -373,7 +373,7 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
             self._events.extend(self.executor.events)
             self.executor.events.clear()
 
-    def relieve(self, *, speed_share: float = 0.1, max_travel: float = 0.06,
+    def relieve(self, *, speed_share: float = 0.1, max_travel: float | None = None,
                 timeout: float = 20.0) -> str:
         """Back a loaded brace off after a protective stop (SAFETY.md 15): nobody stays clamped.
 
@@ -384,7 +384,9 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
         sign, all axes as one vector) until every force has read below
         ``safety.release_force`` for :data:`RELIEF_CONFIRM_S`; then they decelerate and hold in QUICK STOP ACTIVE. The stop stays latched:
         :meth:`recover` then succeeds, its cause being gone. A relief moves at most
-        ``max_travel`` and stops on any fault it cannot back off from.
+        ``max_travel`` (m or rad; by default half the shortest actuator range: a body
+        pressed back from the limit unloads well before that) and stops on any fault it
+        cannot back off from.
 
         :returns: what happened (forces before and after, travel).
         :raises DriverOperationError: nothing latched, a fault the relief cannot handle (a
@@ -413,13 +415,16 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
                                timeout=0.5, what='drive fault reset', raise_=False)
                 finally:
                     self._reset_pulse = False
+            ranges = [self.limits.stroke_of(i) for i in range(len(self.names))]
+            if max_travel is None:
+                max_travel = 0.5 * min(hi - lo for lo, hi in ranges)
             relief = Relief(release_force=release, speed=speed_share * self.limits.v_max,
                             max_travel=max_travel, deadline=time.perf_counter() + timeout,
                             start=fb.position, forces=fb.force, relievable=RELIEVABLE,
-                            lo=np.array([self.limits.stroke_of(i)[0] for i in range(len(self.names))]),
-                            hi=np.array([self.limits.stroke_of(i)[1] for i in range(len(self.names))]),
+                            lo=np.array([r[0] for r in ranges]), hi=np.array([r[1] for r in ranges]),
                             names=self.names,
-                            confirm=math.ceil(RELIEF_CONFIRM_S / self.config.period))
+                            confirm=math.ceil(RELIEF_CONFIRM_S / self.config.period),
+                            unit=self.limits.unit)
             with self._exec_lock:
                 self.executor.anchor(fb.position, time.perf_counter() + self.config.period,
                                      reason='relief: command anchored at the drives')
@@ -448,7 +453,7 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
                                            f'{np.round(after, 1).tolist()} N')
             return (f'relieved: forces {np.round(relief.forces_before, 1).tolist()} N -> '
                     f'{np.round(after, 1).tolist()} N (below safety.release_force = {release:g} N) '
-                    f'after {relief.travel * 1e3:.2f} mm; call recover')
+                    f'after {relief.travel * 1e3:.2f} {relief.milli}; call recover')
 
     def recover(self, *, timeout: float | None = None) -> list[Fault]:
         """Fault reset (6040h bit 7 edge) and clear the latch — only if every cause is gone.

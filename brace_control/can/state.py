@@ -287,7 +287,7 @@ class Relief:
     def __init__(self, *, release_force: float, speed: float, max_travel: float, deadline: float,
                  start: np.ndarray, forces: np.ndarray, relievable: frozenset,
                  lo: np.ndarray, hi: np.ndarray, names: tuple[str, ...],
-                 confirm: int = 1) -> None:
+                 confirm: int = 1, unit: str = 'm') -> None:
         self.release_force = release_force
         #: consecutive samples every force must stay below the release force (one noisy
         #: reading below it is not an unloaded leg)
@@ -302,6 +302,8 @@ class Relief:
         self.travel = 0.0
         self.relievable = relievable
         self.lo, self.hi, self.names = np.asarray(lo, float), np.asarray(hi, float), names
+        #: the thousandth of the actuators' unit, for messages
+        self.milli = 'mm' if unit == 'm' else f'm{unit}'
         self.outcome: str | None = None        # None while moving; '' unloaded; else why it stopped
         self.finished = threading.Event()
 
@@ -317,8 +319,8 @@ class Relief:
             self.outcome = (f'{self.names[i]} reached the end of its stroke with forces still '
                             f'{np.round(self.forces, 1).tolist()} N')
         elif self.travel > self.max_travel:
-            self.outcome = (f'moved {self.travel * 1e3:.1f} mm (the most a relief may move) with '
-                            f'forces still {np.round(self.forces, 1).tolist()} N')
+            self.outcome = (f'moved {self.travel * 1e3:.1f} {self.milli} (the most a relief may move) '
+                            f'with forces still {np.round(self.forces, 1).tolist()} N')
         elif t > self.deadline:
             self.outcome = f'time out with forces still {np.round(self.forces, 1).tolist()} N'
 

@@ -851,6 +851,15 @@ class HoekenFourBar(MechanismBase):
                    for k in range(3))
 
     # ------------------------------------------------------------------ differential protocol
+    def path_point(self, theta: float | np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The coupler curve by crank angle: ``P``, ``dP/dtheta2`` and ``d2P/dtheta2^2``, each
+        of shape (N, 2) (m, m/rad, m/rad^2), on the configured assembly (the path a planner
+        moves along: :class:`~brace_control.trajectory.path.CurvePath`)."""
+        th = np.atleast_1d(np.asarray(theta, dtype=float))
+        p, dp, ddp = self._curve_batch(th)
+        return (np.column_stack([p.real, p.imag]), np.column_stack([dp.real, dp.imag]),
+                np.column_stack([ddp.real, ddp.imag]))
+
     def tangent(self, pose: Sequence[float]) -> np.ndarray:
         """``dP/dtheta2`` (m/rad) at ``pose`` (on the curve, or projected within tolerance)."""
         th = float(self.inverse(pose)[0])

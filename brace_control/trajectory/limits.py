@@ -26,6 +26,9 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = ['Limits', 'Violation', 'PathCheck', 'check_path', 'check_pose', 'check_capacity']
 
+#: samples of a trajectory's exact actuator motion (``actuator_motion``) in the path check
+EXACT_SAMPLES = 2000
+
 #: a path leaving a start below trajectory.min_wrench_capacity may not dip below the start's
 #: capacity by more than this share (the samples' rounding; :func:`check_capacity`)
 START_CAPACITY_REL_TOL = 1e-9
@@ -237,13 +240,32 @@ def check_path(mech: 'Mechanism', trajectory: Trajectory, limits: Limits, *,
         first.reason = f'at t = {ts[i]:.3f} s: {first.reason}'
         return first
     qdot = np.einsum('kij,kj->ki', J, V)
+    qddot = None
+    exact = getattr(trajectory, 'actuator_motion', None)
+    if callable(exact):
+        # the trajectory knows its actuator motion exactly (a motion along a one-mobility
+        # mechanism's path, .path): the range (a crank that turns fully reads the same pose
+        # past its end), speed and acceleration on a fine grid, no differencing
+        ts = np.linspace(0.0, T, max(n, EXACT_SAMPLES))
+        q_exact, qdot, qddot = exact(ts)
+        lo, hi = (np.broadcast_to(np.asarray(v, dtype=float), q_exact.shape[1:])
+                  for v in mech.actuator_limits)
+        out = np.flatnonzero(np.any((q_exact < lo - 1e-9) | (q_exact > hi + 1e-9), axis=1))
+        if out.size:
+            i = int(out[0])
+            j = int(np.argmax((q_exact[i] < lo - 1e-9) | (q_exact[i] > hi + 1e-9)))
+            name = names[j] if j < len(names) else f'#{j}'
+            return PathCheck(Violation.STROKE, f'at t = {ts[i]:.3f} s: actuator {name} would reach '
+                             f'{q_exact[i, j]:.4f}, outside its range {lo[j]:.4f}..{hi[j]:.4f}',
+                             time=float(ts[i]))
     margin = float(limits.limit_margin)
     vmax = margin * np.broadcast_to(np.asarray(limits.actuator_max_velocity, dtype=float), qdot.shape[1:])
     speed = np.abs(qdot) / vmax
     check = PathCheck(q=Q)
     check.speed_ratio = float(speed.max()) if speed.size else 0.0
     if limits.actuator_max_acceleration is not None and n >= 3 and T > 0:
-        qddot = np.gradient(qdot, ts, axis=0)
+        if qddot is None:
+            qddot = np.gradient(qdot, ts, axis=0)
         amax = margin * np.broadcast_to(np.asarray(limits.actuator_max_acceleration, dtype=float),
                                         qdot.shape[1:])
         acc = np.abs(qddot) / amax

@@ -6,6 +6,7 @@ mechanism (:func:`~.limits.check_path`), or raises :class:`PlanRejected` with th
 """
 from __future__ import annotations
 
+import dataclasses
 import enum
 import math
 from dataclasses import dataclass, field
@@ -17,6 +18,7 @@ from .base import ArrayLike, Trajectory, TrajectoryError, as_points
 from .limits import Limits, PathCheck, Violation, check_capacity, check_path, check_pose
 from .logcosh import LogCosh
 from .minimum_jerk import FittsLaw, MinimumJerk, ViaPointMinimumJerk
+from .path import PathTrajectory, curve_path
 from .scurve import SCurve
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -144,6 +146,24 @@ def plan_motion(mech: 'Mechanism', start: ArrayLike, goal: ArrayLike, profile: P
     notes: list[str] = []
     if vias is not None and profile is not Profile.MINIMUM_JERK:
         notes.append(f'via points: minimum-jerk via-point model used instead of {profile.value}')
+    # a one-mobility mechanism (the four-bar) moves along its path: the profile runs in the
+    # path's arc length, every sample on the path (.path)
+    path = curve_path(mech)
+    profile_limits = limits
+    if path is not None:
+        try:
+            p0, pf = np.array([path.coordinate(p0)]), np.array([path.coordinate(pf)])
+            vias = None if vias is None else np.array([[path.coordinate(v)] for v in vias])
+            vel0, acc0 = (np.array([r]) for r in path.rates(
+                as_points(start, 'start', n=dof), vel0, acc0))
+        except ValueError as exc:
+            raise PlanRejected(f'start off the path: {exc}', Violation.WORKSPACE) from exc
+        profile_limits = dataclasses.replace(
+            limits, max_velocity=np.array([np.min(limits.max_velocity)]),
+            max_acceleration=np.array([np.min(limits.max_acceleration)]),
+            max_jerk=np.array([np.min(limits.max_jerk)]))
+        fitts_axes = (0,)
+        notes.append('along the path (arc length)')
     T = duration
     if T is None and (profile is not Profile.SCURVE or vias is not None):
         fitts = fitts or FittsLaw()
@@ -158,15 +178,16 @@ def plan_motion(mech: 'Mechanism', start: ArrayLike, goal: ArrayLike, profile: P
     traj: Trajectory | None = None
     for _ in range(_MAX_STRETCHES):
         try:
-            traj = build_profile(profile, p0, pf, limits, duration=T, via=vias,
-                                 t_via=None if tv is None else tv * stretch, v0=vel0, a0=acc0,
-                                 scale=scale)
+            inner = build_profile(profile, p0, pf, profile_limits, duration=T, via=vias,
+                                  t_via=None if tv is None else tv * stretch, v0=vel0, a0=acc0,
+                                  scale=scale)
         except TrajectoryError as exc:
             raise PlanRejected(f'cannot plan: {exc}') from exc
-        if isinstance(traj, SCurve) and traj.fallback:
-            notes.append(f'Ruckig failed ({traj.fallback}); minimum-jerk fallback within the limits')
-        if isinstance(traj, ViaPointMinimumJerk) and tv is None and vias is not None:
-            tv = traj.t_via / stretch          # optimised once, then scaled with the duration
+        if isinstance(inner, SCurve) and inner.fallback:
+            notes.append(f'Ruckig failed ({inner.fallback}); minimum-jerk fallback within the limits')
+        if isinstance(inner, ViaPointMinimumJerk) and tv is None and vias is not None:
+            tv = inner.t_via / stretch          # optimised once, then scaled with the duration
+        traj = inner if path is None else PathTrajectory(path, inner)
         if traj.duration > MAX_DURATION_S:
             raise PlanRejected(f'the motion would last {traj.duration:.1f} s '
                                f'(more than {MAX_DURATION_S:.0f} s) to respect the limits')
@@ -183,7 +204,7 @@ def plan_motion(mech: 'Mechanism', start: ArrayLike, goal: ArrayLike, profile: P
         if not check.violation.fixable_by_slowing:
             raise PlanRejected(f'path rejected {check.reason}', check.violation)
         factor = max(check.speed_ratio, math.sqrt(max(check.acceleration_ratio, 0.0)), 1.0) * 1.02
-        if isinstance(traj, SCurve) and vias is None and duration is None:
+        if isinstance(inner, SCurve) and vias is None and duration is None:
             scale *= factor
         else:
             T = traj.duration * factor
