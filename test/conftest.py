@@ -56,3 +56,25 @@ def _rcl_logging_stays_up():
     anchor = rclpy.create_node('test_session_anchor', context=keep)
     yield keep
     anchor.destroy_node()
+
+
+#: s: the most one test (setup, call, teardown) may take before the run is ended with every
+#: thread's stack on stderr. A hang must not stall CI (its budget is 25 min): Fast DDS 3.2
+#: can deadlock when a participant of this process delivers a remote participant's removal
+#: while its own announcement timer fires (eProsima/Fast-DDS#6502: the receive thread holds
+#: the PDP mutex in unregister_timer, the event thread waits for it in
+#: set_next_announcement_interval; seen once in a full run, in a fixture's teardown). The
+#: watchdog is faulthandler's C thread: it needs no GIL, which a thread blocked in native
+#: code may hold.
+TEST_LIMIT_S = 420.0
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    import faulthandler
+    import sys
+    faulthandler.dump_traceback_later(TEST_LIMIT_S, exit=True, file=sys.__stderr__)
+    try:
+        yield
+    finally:
+        faulthandler.cancel_dump_traceback_later()

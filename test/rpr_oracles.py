@@ -53,3 +53,15 @@ def lumbar_eq3(pose) -> np.ndarray:
         math.sqrt(x ** 2 + y ** 2),
         math.sqrt((x + R2 * math.cos(t) - R1) ** 2 + (y + R2 * math.sin(t)) ** 2),
     ])
+
+
+def cable_lengths_4rpr(cfg, pose) -> np.ndarray:
+    """4-RPR cable lengths at a pose, from the YAML geometry written out:
+    ``|p + R(psi) r (cos d_n, sin d_n) - A_n|`` (report §"FOUR RPR", eq. 1)."""
+    m = cfg['mechanism']
+    A = np.asarray(m['base_anchors'], float).reshape(4, 2)
+    r = float(m['platform_radius'])
+    d = np.asarray(m['anchor_angles'], float)
+    x, y, psi = pose
+    B = np.column_stack([r * np.cos(d + psi), r * np.sin(d + psi)])
+    return np.linalg.norm(np.array([x, y]) + B - A, axis=1)

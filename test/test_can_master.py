@@ -23,6 +23,7 @@ from brace_control.can.framelog import BusMonitor
 from brace_control.config import load_device_config
 from brace_control.mechanisms import mechanism_from_config
 from brace_control.sim import SimulatedBrace
+from rpr_oracles import cable_lengths_4rpr
 
 CFG = load_device_config('config/lumbar_brace.yaml')
 MECH = mechanism_from_config(CFG)
@@ -1055,6 +1056,52 @@ def test_a_loaded_stop_on_rigid_rotary_joints_is_relieved():
         _recover_ok(master)
         master.enable()
         assert master.state is MasterState.ENABLED
+    finally:
+        master.shutdown()
+        sim.shutdown()
+
+
+def test_a_cable_brace_takes_up_its_slack_after_a_relief():
+    """4-RPR neck brace (cables pull only): the head's rest moves 40 mm (1500 N/m: 60 N) and
+    a protective stop latches on the cables' force limit (25 N here); the relief pays the
+    cables out until every tension is below the release force, and some go slack: their
+    commanded lengths then fit no pose. take_up shortens every slack cable until it holds
+    tension_min (5 N) again: afterwards each commanded length is the length of that cable at
+    the simulator's TRUE head pose (geometry written out here) within its stretch under
+    load (shorter by tension / 2e5 N/m) and two counts, and every TRUE tension is at least tension_min
+    less the load cell's noise."""
+    import copy
+    cfg = copy.deepcopy(load_device_config('config/neck_brace_4rpr.yaml'))
+    cfg['safety'].update({'force_limit': 25.0, 'soft_force_limit': 20.0, 'release_force': 5.0})
+    channel = f'cantest-{os.getpid()}-{next(_ids)}'
+    sim = SimulatedBrace(cfg, channel=channel)
+    master = BraceMaster.from_device_config(cfg, channel=channel)
+    try:
+        master.boot()
+        master.home()
+        master.enable()
+        rest = np.asarray(cfg['sim']['rest_pose'], float)
+        sim.set_rest_pose(rest + np.array([0.04, 0.0, 0.0]))
+        wait_for(_latched(master, FaultKind.FORCE_LIMIT), 2.0, 'force limit')
+        wait_for(lambda: stopped(master), 1.0, 'protective stop')
+        assert 'relieved' in master.relieve()
+        _recover_ok(master)
+        master.enable()
+        truth = sim.truth()
+        off = np.abs(master.feedback().position - cable_lengths_4rpr(cfg, truth.pose))
+        assert off.max() > 0.002, f'premise: slack cables after the relief, {off} m'
+        message = master.take_up(below=5.0)
+        assert 'slack taken up' in message, message
+        wait_for(lambda: not master.moving, 1.0, 'rest after the take-up')
+        truth = sim.truth()
+        tension = -truth.forces
+        stretch = np.maximum(tension, 0.0) / float(cfg['sim']['leg_stiffness'])
+        geometric = cable_lengths_4rpr(cfg, truth.pose)
+        count = float(cfg['actuator']['screw_lead']) / float(cfg['actuator']['encoder_counts_per_rev'])
+        np.testing.assert_allclose(master.feedback().position + stretch, geometric, atol=2 * count + 1e-5)
+        assert np.all(tension >= 5.0 - 4 * float(cfg['sim']['load_cell_noise'])), tension
+        assert master.state is MasterState.ENABLED and not master.supervisor.latched
+        assert 'nothing to take up' in master.take_up(below=5.0)
     finally:
         master.shutdown()
         sim.shutdown()

@@ -529,10 +529,12 @@ def process_bring_up(device_file, extra_args):
         yield group, node, probe
         assert not group.failed(), f'a node process died: {group.failed()}'
     finally:
-        codes = group.stop()
+        # this process's participant goes first: it then never delivers the node processes'
+        # removal (a Fast DDS deadlock window, conftest.TEST_LIMIT_S)
         executor.shutdown()
         node.destroy_node()
         rclpy.shutdown(context=ctx)
+        codes = group.stop()
     assert all(c == 0 for c in codes.values()), {n: c for n, c in codes.items() if c != 0}
 
 

@@ -335,10 +335,11 @@ def operator_stack(device_file: Path, extra_args: Sequence[str] = ()) -> Iterato
         wait_ready(op, chain=True)
         yield op
     finally:
-        codes = group.stop()
+        # this process's participant goes first (see test_e2e.process_bring_up)
         executor.shutdown()
         node.destroy_node()
         rclpy.shutdown(context=ctx)
+        codes = group.stop()
     assert all(c == 0 for c in codes.values()), {n: c for n, c in codes.items() if c != 0}
 
 

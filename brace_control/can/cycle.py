@@ -35,7 +35,7 @@ from .frame import Frame
 from .execution import ExecutionState
 from .monitors import BRAKEABLE
 from .pdo import RPDO1, RPDO2, frame_bits
-from .state import Relief, _Drive, _Setpoint
+from .state import Relief, TakeUp, _Drive, _Setpoint
 from .supervision import FaultKind, check_step
 from .timing import run_periodic
 
@@ -126,9 +126,15 @@ class CycleMixin:
         enabled = [d.sample is not None and decode_state(d.sample.statusword) is State402.OPERATION_ENABLED
                    for d in drives]
         following = ((self._tracking and not stopped) or braking or relief is not None) and any(enabled)
+        take = self._take_up
+        if take is not None and stopped and take.outcome is None:
+            take.outcome = f'protective stop: {self.supervisor.summary()}'
+            take.finished.set()
         if following:
             if relief is not None:
                 self._feed_relief(relief, t_wake)
+            elif take is not None and not stopped:
+                self._feed_take_up(take, t_wake)
             self._command(t_wake, feed=self._tracking and not stopped)
             if self.supervisor.latched and not stopped:
                 stopped = True
@@ -312,22 +318,27 @@ class CycleMixin:
 
     # ------------------------------------------------------------------ soft force limit
     def _begin_soft_stop(self, t_wake: float) -> None:
-        """SAFETY.md 14: a leg above the soft limit while the motion presses on: brake along
-        the path and hold; reported as the motion's stop, nothing latches."""
-        index, force = self._soft_stop
-        self._soft_stop = None
-        name = self.names[index]
-        context = ''
-        if self.soft_limit_context is not None:
-            try:
-                context = self.soft_limit_context(index, force)
-            except Exception as exc:  # noqa: BLE001 - the stop matters, not its description
-                context = f' (capacity unknown: {exc!r})'
-        unit = 'N' if self.limits.unit == 'm' else 'N·m'
-        reason = (f'soft force limit: {name} at {force:.1f} {unit}, above safety.soft_force_limit = '
-                  f'{self.limits.soft_force_limit:.3g} {unit}{context}; decelerated along the path, holding')
+        """SAFETY.md 14: a leg above the soft limit while the motion presses on (or a soft
+        limit the node found: :meth:`~.master.BraceMaster.soft_stop`, its reason given):
+        brake along the path and hold; reported as the motion's stop, nothing latches."""
+        pending, self._soft_stop = self._soft_stop, None
+        if isinstance(pending, str):
+            key, reason = 'soft_wrench', pending
+        else:
+            index, force = pending
+            name = self.names[index]
+            context = ''
+            if self.soft_limit_context is not None:
+                try:
+                    context = self.soft_limit_context(index, force)
+                except Exception as exc:  # noqa: BLE001 - the stop matters, not its description
+                    context = f' (capacity unknown: {exc!r})'
+            unit = 'N' if self.limits.unit == 'm' else 'N·m'
+            key = 'soft_force'
+            reason = (f'soft force limit: {name} at {force:.1f} {unit}, above safety.soft_force_limit = '
+                      f'{self.limits.soft_force_limit:.3g} {unit}{context}; decelerated along the path, holding')
         log.warning(reason)
-        self.supervisor.warn('soft_force', reason)
+        self.supervisor.warn(key, reason)
         with self._exec_lock:
             self.executor.stop(reason, now=t_wake)
 
@@ -357,6 +368,22 @@ class CycleMixin:
                 ex.stream_stale()
             elif ex.state is ExecutionState.HOLD:
                 relief.finished.set()
+
+    def _feed_take_up(self, take: 'TakeUp', t_wake: float) -> None:
+        """One cycle of a take-up: every slack leg shortens at the take-up's speed, the taut
+        ones hold; once all are taut (or it stopped short) the command decelerates and holds."""
+        forces = np.array([d.sample.force if d.sample is not None else 0.0 for d in self._drives])
+        with self._exec_lock:
+            ex = self.executor
+            if take.outcome is None:
+                take.update(forces, ex.q, t_wake)
+            if take.outcome is None:
+                v = np.where(take.slack(forces), -take.speed, 0.0)
+                ex.set_stream(ex.q + v * self.config.period, v, t_wake)
+            elif ex.state is not ExecutionState.HOLD and not ex.braking:
+                ex.stream_stale()
+            elif ex.state is ExecutionState.HOLD:
+                take.finished.set()
 
     # ------------------------------------------------------------------ protective stop
     def _begin_fault_stop(self, t_wake: float) -> None:

@@ -227,6 +227,20 @@ class PathExecutor:
     def braking(self) -> bool:
         return self._brake is not None or self._stream_stopping
 
+    def distance_to_go(self, stream_horizon: float) -> float | None:
+        """How far (actuator-space norm) the command goes on: to the running trajectory's
+        end, or for a setpoint stream (its end unknown) its speed times ``stream_horizon``;
+        ``None`` at rest, braking, or in interaction (the motions a soft limit may stop,
+        SAFETY.md 14)."""
+        if self.braking:
+            return None
+        if self.state is ExecutionState.STREAM:
+            return float(np.linalg.norm(self.v)) * float(stream_horizon)
+        run = self._running
+        if self.state is not ExecutionState.TRAJECTORY or run is None:
+            return None
+        return float(np.linalg.norm(run.traj.positions[-1] - self.q))
+
     @property
     def running_tag(self) -> int | None:
         return None if self._running is None else self._running.tag

@@ -65,7 +65,7 @@ from .monitors import MonitorMixin
 from .receive import ReceiveMixin
 from .monitors import RELIEVABLE
 from .state import (BusStatus, DriveStatus, Feedback, MasterConfig, MasterState, MasterStatus,
-                    Relief, _Drive, _Setpoint)
+                    Relief, TakeUp, _Drive, _Setpoint)
 from .supervision import Fault, FaultKind, Supervisor
 from .timing import PeriodStats
 
@@ -80,6 +80,8 @@ STOP_WAIT_S = 2.0
 #: s every load cell must read below the release force before a relief counts as done
 #: (a single noisy reading below it is not an unloaded leg)
 RELIEF_CONFIRM_S = 0.05
+#: SYNCs from a command to the load cell reading its effect (the take-up's speed limit)
+TAKE_UP_LAG_SYNCS = 3
 
 
 class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
@@ -109,8 +111,12 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
         self._commanding = False               # last cycle's targets came from the executor
         self._fault_to_handle = False
         self._fault_brake_until = 0.0
-        self._soft_stop: tuple[int, float] | None = None     # (drive index, force) to brake for
+        # (drive index, force) to brake for, or the reason of a soft limit the node found
+        self._soft_stop: tuple[int, float] | str | None = None
         self._relief: Relief | None = None
+        self._take_up: TakeUp | None = None
+        #: a relief moved the actuators since the last take-up: pull-only legs may hang slack
+        self.relieved = False
         #: ``f(actuator index, force) -> str``: what the soft-limit stop adds to its reason
         #: (the node: the wrench capacity at the estimated pose); ``None``: nothing
         self.soft_limit_context: Callable[[int, float], str] | None = None
@@ -446,6 +452,7 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
                            timeout=1.0, what='QUICK STOP ACTIVE after the relief', raise_=False)
                 self._set_state(MasterState.FAULT if self.supervisor.latched else MasterState.DISABLED)
             after = self.feedback().force
+            self.relieved = self.relieved or relief.travel > 0.0
             if relief.outcome:
                 raise DriverOperationError(f'relief stopped: {relief.outcome}')
             if relief.outcome is None:
@@ -454,6 +461,88 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
             return (f'relieved: forces {np.round(relief.forces_before, 1).tolist()} N -> '
                     f'{np.round(after, 1).tolist()} N (below safety.release_force = {release:g} N) '
                     f'after {relief.travel * 1e3:.2f} {relief.milli}; call recover')
+
+    @property
+    def taking_up(self) -> bool:
+        """A :meth:`take_up` is under way (enabled, but not yet following goals)."""
+        return self._take_up is not None
+
+    def distance_to_go(self, stream_horizon: float = 0.25) -> float | None:
+        """:meth:`~.execution.PathExecutor.distance_to_go` of the command (m or rad), ``None``
+        when no motion a soft limit may stop runs."""
+        if self.state is not MasterState.ENABLED:
+            return None
+        with self._exec_lock:
+            return self.executor.distance_to_go(stream_horizon)
+
+    def soft_stop(self, reason: str) -> bool:
+        """A soft limit found outside the drives' samples (the node's platform wrench, SAFETY.md
+        14): the running trajectory or setpoint stream brakes along its path at the next SYNC
+        and holds, reported stopped with ``reason``; nothing latches. ``False`` (nothing
+        done) when no such motion runs, it already brakes, or a soft stop is pending."""
+        if self.distance_to_go() is None or self._soft_stop is not None:
+            return False
+        self._soft_stop = str(reason)
+        return True
+
+    def take_up(self, *, below: float, speed_share: float = 0.1, max_travel: float | None = None,
+                timeout: float | None = None) -> str:
+        """Take up the slack of pull-only legs (cables) at rest: every leg reading less tension
+        than ``below`` (N) shortens slowly until it reads at least that, the taut ones hold;
+        then the command decelerates and holds, enabled. Slowly: at most ``speed_share`` of
+        ``v_max``, and so that a leg turning taut gains at most ``below`` in the
+        :data:`TAKE_UP_LAG_SYNCS` SYNCs its load cell takes to say so (the legs' stiffness);
+        ``timeout`` (s) by default covers ``max_travel`` at that speed, at most a minute.
+
+        After a relief (SAFETY.md 15) a cable brace's cables hang slack: their lengths no
+        longer agree with any pose, and a motion planned from the pose would start far from
+        them. Taken up, the lengths are the cables' at the platform's true pose again.
+
+        :returns: what happened (tensions before and after, the most any cable shortened);
+            nothing to do when every leg is taut.
+        :raises DriverOperationError: not enabled, moving, or the take-up stopped short
+            (stroke end, ``max_travel`` -- half the shortest range by default --, time out, a
+            protective stop): why, and the tensions.
+        """
+        with self._api_lock:
+            self._require_open()
+            if self.state is not MasterState.ENABLED or self.supervisor.latched:
+                raise DriverOperationError(f'take-up needs the drives enabled (now {self.state.value})')
+            with self._exec_lock:
+                if self.executor.moving:
+                    raise DriverOperationError('take-up starts from rest: a motion is running')
+            fb = self.feedback()
+            ranges = [self.limits.stroke_of(i) for i in range(len(self.names))]
+            if max_travel is None:
+                max_travel = 0.5 * min(hi - lo for lo, hi in ranges)
+            speed = min(speed_share * self.limits.v_max,
+                        below / (self.config.stiffness * TAKE_UP_LAG_SYNCS * self.config.period))
+            if timeout is None:
+                timeout = min(60.0, 5.0 + 1.5 * max_travel / speed)
+            take = TakeUp(below=below, speed=speed, max_travel=max_travel,
+                          deadline=time.perf_counter() + timeout, start=fb.position, forces=fb.force,
+                          lo=np.array([r[0] for r in ranges]), names=self.names,
+                          confirm=math.ceil(RELIEF_CONFIRM_S / self.config.period), unit=self.limits.unit)
+            if not np.any(take.slack(fb.force)):
+                self.relieved = False
+                return f'nothing to take up: every leg holds {below:g} N or more'
+            log.warning('take-up: tensions %s N', np.round(-fb.force, 1).tolist())
+            self._take_up = take
+            try:
+                take.finished.wait(timeout + 2.0)
+            finally:
+                self._take_up = None
+                self._wait(lambda: not self.executor.moving, timeout=1.0, what='rest after the take-up',
+                           raise_=False)
+            after = self.feedback().force
+            if take.outcome is None:
+                take.outcome = f'time out with tensions {np.round(-after, 1).tolist()} N'
+            if take.outcome:
+                raise DriverOperationError(f'take-up stopped: {take.outcome}')
+            self.relieved = False
+            return (f'slack taken up: tensions {np.round(-take.forces_before, 1).tolist()} N -> '
+                    f'{np.round(-after, 1).tolist()} N, cables shortened up to '
+                    f'{np.max(take.travel) * 1e3:.2f} {take.milli}')
 
     def recover(self, *, timeout: float | None = None) -> list[Fault]:
         """Fault reset (6040h bit 7 edge) and clear the latch — only if every cause is gone.

@@ -164,7 +164,9 @@ class MonitorMixin:
             # cycle does it); a motion that unloads the leg (the force falling) goes on
             f = abs(s.force)
             trend = d.force_trend
+            # (once: while the motion brakes for it the force may still rise a little)
             if (f > limits.soft_force_limit and tracking and self.executor.moving
+                    and not self.executor.braking
                     and len(trend) >= 5 and f - trend[0] > SOFT_RISE_N and self._soft_stop is None):
                 self._soft_stop = (d.index, s.force)
             trend.append(f)

@@ -329,3 +329,56 @@ class Relief:
         other = [f for f in faults if f.kind not in self.relievable]
         if other and self.outcome is None:
             self.outcome = f'a new fault: {other[0].describe()}'
+
+
+class TakeUp:
+    """Slack taken up in pull-only legs (cables) in progress (:meth:`~.master.BraceMaster.take_up`),
+    shared by the API thread that waits and the SYNC thread that moves.
+
+    A cable reading less tension than ``below`` (thrust ``f > -below``: thrust is minus the
+    tension) is slack: it shortens at ``speed`` until it reads ``below`` or more; a taut one
+    holds. Done when every leg has read taut for ``confirm`` samples.
+    """
+
+    def __init__(self, *, below: float, speed: float, max_travel: float, deadline: float,
+                 start: np.ndarray, forces: np.ndarray, lo: np.ndarray, names: tuple[str, ...],
+                 confirm: int = 1, unit: str = 'm') -> None:
+        self.below = float(below)
+        self.speed = float(speed)
+        self.max_travel = float(max_travel)
+        self.deadline = deadline
+        self.confirm = max(1, int(confirm))
+        self._taut = 0
+        self.start = np.asarray(start, dtype=float).copy()
+        self.forces_before = np.asarray(forces, dtype=float).copy()
+        self.forces = self.forces_before.copy()
+        self.travel = np.zeros_like(self.start)
+        self.lo, self.names = np.asarray(lo, float), names
+        self.milli = 'mm' if unit == 'm' else f'm{unit}'
+        self.outcome: str | None = None        # None while moving; '' taut; else why it stopped
+        self.finished = threading.Event()
+
+    def slack(self, forces: np.ndarray) -> np.ndarray:
+        """Which legs read slack."""
+        return np.asarray(forces, dtype=float) > -self.below
+
+    def update(self, forces: np.ndarray, q: np.ndarray, t: float) -> None:
+        """Judge the latest forces and travel: taut, or stopped short (and why)."""
+        self.forces = np.asarray(forces, dtype=float).copy()
+        q = np.asarray(q, dtype=float)
+        self.travel = self.start - q
+        slack = self.slack(self.forces)
+        self._taut = 0 if np.any(slack) else self._taut + 1
+        if self._taut >= self.confirm:
+            self.outcome = ''
+        elif np.any(slack & (q <= self.lo + STROKE_MARGIN)):
+            i = int(np.argmax(slack & (q <= self.lo + STROKE_MARGIN)))
+            self.outcome = (f'{self.names[i]} reached the end of its stroke still slack '
+                            f'({-self.forces[i]:.1f} N of tension)')
+        elif np.any(self.travel > self.max_travel):
+            i = int(np.argmax(self.travel))
+            self.outcome = (f'{self.names[i]} shortened {self.travel[i] * 1e3:.1f} {self.milli} (the '
+                            f'most a take-up may) still slack ({-self.forces[i]:.1f} N of tension): '
+                            'a broken or unhooked cable?')
+        elif t > self.deadline:
+            self.outcome = f'time out with tensions {np.round(-self.forces, 1).tolist()} N'

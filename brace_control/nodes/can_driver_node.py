@@ -124,6 +124,7 @@ import sys
 import threading
 import time
 import traceback
+from collections import deque
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -151,6 +152,19 @@ __all__ = ['CanDriverNode', 'main']
 
 #: rejection errors at most once per this many seconds (the stream runs at 200 Hz)
 REJECT_LOG_PERIOD = 1.0
+#: m: pull-only legs whose lengths are farther than this from the lengths of the pose that
+#: fits them best hang slack: ~/enable takes the slack up (so it does after a relief)
+TAKE_UP_GAP_M = 0.0005
+#: N: the tension a take-up brings every cable to when the mechanism sets no tension_min
+TAKE_UP_TENSION_N = 1.0
+#: the soft wrench tier (CanDriverNode._watch_wrench) looks at wrenches above this share of
+#: safety.max_wrench; the rise is taken over SOFT_WRENCH_WINDOW_S (s) and counts above
+#: SOFT_WRENCH_RISE of the limit; a setpoint stream (its end unknown) is extrapolated
+#: SOFT_WRENCH_STREAM_S (s) at its speed
+SOFT_WRENCH_FLOOR = 0.5
+SOFT_WRENCH_WINDOW_S = 0.05
+SOFT_WRENCH_RISE = 0.01
+SOFT_WRENCH_STREAM_S = 0.25
 #: Hz: execution events and the driver state are published this often (when they change)
 EVENT_RATE_HZ = 50.0
 
@@ -207,6 +221,7 @@ class CanDriverNode(LifecycleNode):
         #: a planar RPR's legs in plain floats (the wrench check's J^T f), None: the mechanism's
         self._legs = None if self.mechanism is None else self._float_legs()
         self._wrench_limit = np.asarray(self.cfg['safety']['max_wrench'], float)
+        self._wrench_trend: deque = deque(maxlen=16)     # (monotonic s, |wrench| per axis)
         self._last_faults: tuple = ()
         # services take up to seconds (402 transitions, braking, a relief): their work runs in
         # a thread and the callback awaits it (_trigger), so one thread of an executor serves
@@ -744,12 +759,14 @@ class CanDriverNode(LifecycleNode):
             return
         faults = m.supervisor.faults
         execution = m.executor.state.value
-        key = (lifecycle, m.state, tuple(f.describe() for f in faults), m.homed, execution)
+        taking_up = m.taking_up
+        key = (lifecycle, m.state, tuple(f.describe() for f in faults), m.homed, execution, taking_up)
         if key == self._last_state_key and not force:
             return
         self._last_state_key = key
         state = m.state
-        text = 'protective stop' if state is MasterState.FAULT else state.value
+        text = ('protective stop' if state is MasterState.FAULT else
+                'enabled, taking up the cables\' slack' if taking_up else state.value)
         level = (DiagnosticStatus.ERROR if faults else
                  DiagnosticStatus.OK if state is MasterState.ENABLED else DiagnosticStatus.WARN)
         message = f'{text}: {m.supervisor.summary()}' if faults else text
@@ -757,7 +774,7 @@ class CanDriverNode(LifecycleNode):
             message = f'{lifecycle}: {message}'
         self._state_pub.publish(status_msg(
             f'{self.get_name()}/state', message, level=level, state=state.value, lifecycle=lifecycle,
-            enabled=str(state is MasterState.ENABLED and lifecycle == 'active').lower(),
+            enabled=str(state is MasterState.ENABLED and lifecycle == 'active' and not taking_up).lower(),
             homed=str(m.homed).lower(),
             faults=m.supervisor.summary() if faults else 'none', execution=execution,
             command=list(m.executor.q) if m.executor.anchored else [],
@@ -844,6 +861,45 @@ class CanDriverNode(LifecycleNode):
                 f'platform wrench {np.round(w, 1).tolist()} exceeds safety.max_wrench '
                 f'{self._wrench_limit.tolist()} on axis {np.flatnonzero(over).tolist()}',
                 still_present=self._wrench_exceeds)
+        else:
+            self._watch_wrench(np.abs(w[:n]), self._wrench_limit[:n], np.asarray(q, float),
+                               time.monotonic())
+
+    def _watch_wrench(self, load: np.ndarray, limit: np.ndarray, q: np.ndarray, now: float) -> None:
+        """The soft tier of the wrench limit (SAFETY.md 14 for the platform wrench): a motion
+        whose wrench on the body rises so that, at its rise per actuator displacement over
+        the last :data:`SOFT_WRENCH_WINDOW_S`, it would pass ``safety.max_wrench`` by the end
+        of the motion is braked along its path at once and holds; its goal is aborted with
+        the axis, the wrench and the prediction; nothing latches. A goal whose load stays
+        below the limit is left alone: the prediction is the load at the motion's end, not a
+        fixed share of the limit. Looked at from half the limit up (the extrapolation at
+        most doubles the load), so a motion heading past the limit stops with room to brake;
+        a rise within the load cells' noise (:data:`SOFT_WRENCH_RISE`) is no rise."""
+        trend = self._wrench_trend
+        trend.append((now, load, q))
+        if not np.any(load > SOFT_WRENCH_FLOOR * limit):
+            return
+        old = next((s for s in reversed(trend) if now - s[0] >= SOFT_WRENCH_WINDOW_S), None)
+        if old is None:
+            return
+        moved = float(np.linalg.norm(q - old[2]))
+        rise = load - old[1]
+        togo = self.master.distance_to_go(SOFT_WRENCH_STREAM_S)
+        if togo is None or moved <= 0.0:
+            return
+        ahead = load + np.maximum(rise, 0.0) / moved * togo
+        hit = np.flatnonzero((load > SOFT_WRENCH_FLOOR * limit) & (rise > SOFT_WRENCH_RISE * limit)
+                            & (ahead > limit))
+        if not hit.size:
+            return
+        j = int(hit[0])
+        axis, unit = _wrench_axis(self.mechanism, j)
+        reason = (f'soft wrench limit: the platform {axis} at {load[j]:.1f} {unit}, rising '
+                  f'{rise[j]:.2f} {unit} in the last {moved * 1e3:.2f} mm (or mrad) of the motion, '
+                  f'would reach {ahead[j]:.1f} {unit} by its end, above safety.max_wrench = '
+                  f'{limit[j]:g} {unit}; decelerated along the path, holding')
+        if self.master.soft_stop(reason):
+            trend.clear()
 
     # ------------------------------------------------------------------ services
 
@@ -889,7 +945,37 @@ class CanDriverNode(LifecycleNode):
 
     def _enable(self) -> str:
         self.master.enable()
-        return f'OPERATION ENABLED at {self._positions()}'
+        done = f'OPERATION ENABLED at {self._positions()}'
+        if getattr(self.mechanism, 'actuation', None) != 'cable':
+            return done
+        gap = self._slack_gap()
+        if gap is None and not self.master.relieved:
+            return done
+        # cables hanging slack (after a relief): their lengths are not the head's, and a
+        # motion planned from the pose would start far from them: take the slack up first
+        why = ('after the relief' if gap is None else
+               f'the lengths fit no pose ({gap * 1e3:.2f} mm off)')
+        below = float(getattr(self.mechanism, 'tension_min', 0.0)) or TAKE_UP_TENSION_N
+        try:
+            took = self.master.take_up(below=below)
+        except DriverError as exc:
+            raise _Refused(f'{done}, but {why} the cables could not be taken up: {exc}; a goal '
+                           'cannot start from their lengths') from exc
+        return f'{done}; {why}: {took}'
+
+    def _slack_gap(self) -> float | None:
+        """For pull-only legs (cables): how far (m) the measured lengths are from the lengths
+        of the pose that fits them best, when more than :data:`TAKE_UP_GAP_M`; else None."""
+        m = self.mechanism
+        if m is None or getattr(m, 'actuation', None) != 'cable' or self.master is None:
+            return None
+        q = np.asarray(self.master.feedback().position, float)
+        try:
+            pose = np.asarray(m.forward_nearest(q, self._pose_hint), float)
+            gap = float(np.max(np.abs(np.asarray(m.inverse(pose), float) - q)))
+        except ValueError as exc:           # InconsistentLengths: its residual; else unknown
+            gap = float(getattr(exc, 'residual', math.inf))
+        return gap if gap > TAKE_UP_GAP_M else None
 
     def _disable(self) -> str:
         self.master.disable()
@@ -1034,6 +1120,15 @@ class _Yield:
 def _yield() -> _Yield:
     """Give the executor back one turn (rclpy resumes pending coroutine tasks on its next wake)."""
     return _Yield()
+
+
+def _wrench_axis(mechanism: Any, j: int) -> tuple[str, str]:
+    """Name and unit of axis ``j`` of ``safety.max_wrench`` for the mechanism's pose kind."""
+    kind = getattr(mechanism, 'pose_kind', None) or {3: 'planar', 2: 'xy'}.get(
+        int(getattr(mechanism, 'dof', 0)), '')
+    axes = {'planar': (('Fx', 'N'), ('Fy', 'N'), ('Mz', 'N·m')), 'xy': (('Fx', 'N'), ('Fy', 'N')),
+            'spherical': (('Mx', 'N·m'), ('My', 'N·m'), ('Mz', 'N·m'))}.get(kind, ())
+    return axes[j] if j < len(axes) else (f'axis {j}', 'N or N·m')
 
 
 class _Refused(DriverError):
