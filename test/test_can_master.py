@@ -299,6 +299,12 @@ def _recover_ok(master):
     assert not master.supervisor.latched and master.state is MasterState.DISABLED
 
 
+def _recover_and_enable(master):
+    _recover_ok(master)
+    master.enable()
+    assert master.state is MasterState.ENABLED
+
+
 def test_fault_heartbeat_silenced(rig):
     """Bound: consumer time 150 ms after the last heartbeat (≤ 150 ms) + slack."""
     sim, master = rig
@@ -935,10 +941,11 @@ def test_the_legs_carry_only_the_static_load_while_moving(rig):
 
 
 # ---------------------------------------------------------------------------- soft limit, relief
-def _rig_with(safety):
-    """A rig whose safety limits are overridden (the YAML's body and geometry)."""
+def _rig_with(safety, cfg=CFG):
+    """A rig whose safety limits are overridden (the YAML's body and geometry; the lumbar
+    brace's unless ``cfg`` is another device's)."""
     import copy
-    cfg = copy.deepcopy(CFG)
+    cfg = copy.deepcopy(cfg)
     cfg['safety'].update(safety)
     channel = f'cantest-{os.getpid()}-{next(_ids)}'
     sim = SimulatedBrace(cfg, channel=channel)
@@ -1007,9 +1014,7 @@ def test_a_loaded_stop_is_relieved_then_recovered():
         assert np.abs(truth.forces).max() < 6.0          # the true forces, not one noisy reading
         speed = np.abs(truth.velocities).max()
         assert speed < 1e-9                                                # holding
-        _recover_ok(master)
-        master.enable()
-        assert master.state is MasterState.ENABLED
+        _recover_and_enable(master)
     finally:
         master.shutdown()
         sim.shutdown()
@@ -1034,16 +1039,9 @@ def test_a_loaded_stop_on_rigid_rotary_joints_is_relieved():
     limit (2 N·m here), a protective stop latches, recover is refused; relieve swings the
     joints back until the TRUE torques (the simulator's) are below the release force, and
     recover then succeeds."""
-    import copy
-    cfg = copy.deepcopy(load_device_config('config/neck_brace_2r.yaml'))
-    cfg['safety'].update({'force_limit': 2.0, 'soft_force_limit': 1.6, 'release_force': 0.4})
-    channel = f'cantest-{os.getpid()}-{next(_ids)}'
-    sim = SimulatedBrace(cfg, channel=channel)
-    master = BraceMaster.from_device_config(cfg, channel=channel)
+    cfg = load_device_config('config/neck_brace_2r.yaml')
+    sim, master = _rig_with({'force_limit': 2.0, 'soft_force_limit': 1.6, 'release_force': 0.4}, cfg)
     try:
-        master.boot()
-        master.home()
-        master.enable()
         rest = np.asarray(cfg['sim']['rest_pose'], float)
         sim.set_rest_pose(rest + np.array([0.0, 0.04]))
         wait_for(_latched(master, FaultKind.FORCE_LIMIT), 2.0, 'force limit')
@@ -1053,9 +1051,7 @@ def test_a_loaded_stop_on_rigid_rotary_joints_is_relieved():
         message = master.relieve()
         assert 'relieved' in message and 'mrad' in message, message
         assert np.abs(sim.truth().forces).max() < 0.4, (sim.truth().forces, message)
-        _recover_ok(master)
-        master.enable()
-        assert master.state is MasterState.ENABLED
+        _recover_and_enable(master)
     finally:
         master.shutdown()
         sim.shutdown()
@@ -1070,16 +1066,9 @@ def test_a_cable_brace_takes_up_its_slack_after_a_relief():
     the simulator's TRUE head pose (geometry written out here) within its stretch under
     load (shorter by tension / 2e5 N/m) and two counts, and every TRUE tension is at least tension_min
     less the load cell's noise."""
-    import copy
-    cfg = copy.deepcopy(load_device_config('config/neck_brace_4rpr.yaml'))
-    cfg['safety'].update({'force_limit': 25.0, 'soft_force_limit': 20.0, 'release_force': 5.0})
-    channel = f'cantest-{os.getpid()}-{next(_ids)}'
-    sim = SimulatedBrace(cfg, channel=channel)
-    master = BraceMaster.from_device_config(cfg, channel=channel)
+    cfg = load_device_config('config/neck_brace_4rpr.yaml')
+    sim, master = _rig_with({'force_limit': 25.0, 'soft_force_limit': 20.0, 'release_force': 5.0}, cfg)
     try:
-        master.boot()
-        master.home()
-        master.enable()
         rest = np.asarray(cfg['sim']['rest_pose'], float)
         sim.set_rest_pose(rest + np.array([0.04, 0.0, 0.0]))
         wait_for(_latched(master, FaultKind.FORCE_LIMIT), 2.0, 'force limit')

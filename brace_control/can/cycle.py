@@ -26,6 +26,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Callable
 
 import can
 import numpy as np
@@ -49,9 +50,7 @@ FAULT_BRAKE_LIMIT_S = 1.0
 RPDO_REFRESH = 50
 #: a relief's force gain as a share of the stiffest direction's one-cycle limit
 RELIEF_GAIN = 0.2
-#: the slowest a relief moves, as a share of its speed: the gain is set by the legs'
-#: stiffness, but what resists a relief is the body through the mechanism, far softer (a
-#: rotary joint modelled rigid, 1e7 N·m/rad, would crawl at micro-radians per second)
+#: a relief's first steps, before it has measured the stiffness it meets, as a share of its speed
 RELIEF_MIN_SHARE = 0.25
 
 
@@ -347,43 +346,52 @@ class CycleMixin:
         """One cycle of a relief (SAFETY.md 15): every actuator moves the way that unloads its
         own leg, at most ``speed`` (one vector, scaled as a whole), until every force is below
         the release force; then the command decelerates and holds."""
-        forces = np.array([d.sample.force if d.sample is not None else 0.0 for d in self._drives])
-        with self._exec_lock:
-            ex = self.executor
-            if relief.outcome is None:
-                relief.update(forces, ex.q, t_wake)
-            if relief.outcome is None:
-                # steepest descent of the elastic energy: dE/dq_i = f_i (the legs and the body at
-                # equilibrium). The gain keeps the stiffest direction (a leg against its own
-                # stiffness k) from stepping past zero in one cycle: k g T = RELIEF_GAIN < 1.
-                gain = RELIEF_GAIN / (self.config.stiffness * self.config.period)
-                v = -gain * forces
-                fastest = float(np.max(np.abs(v)))
-                if fastest > relief.speed:
-                    v = v * (relief.speed / fastest)
-                elif 0.0 < fastest < RELIEF_MIN_SHARE * relief.speed:
-                    v = v * (RELIEF_MIN_SHARE * relief.speed / fastest)
-                ex.set_stream(ex.q + v * self.config.period, v, t_wake)
-            elif ex.state is not ExecutionState.HOLD and not ex.braking:
-                ex.stream_stale()
-            elif ex.state is ExecutionState.HOLD:
-                relief.finished.set()
+        def velocity(forces: np.ndarray) -> np.ndarray:
+            # steepest descent of the elastic energy: dE/dq_i = f_i (the legs and the body at
+            # equilibrium). The gain keeps the stiffest direction from stepping past zero in
+            # one cycle: k g T = RELIEF_GAIN < 1, k the stiffness the relief meets (what the
+            # load cells said of its last steps), at most the legs' own. A joint modelled
+            # rigid (1e7 N·m/rad) meets only the body through the mechanism: paced by the
+            # legs' figure it would crawl at micro-radians per second. Until a step was
+            # measured it moves at RELIEF_MIN_SHARE of its speed.
+            # Within twice the release force it slows in proportion, and it holds while the
+            # forces read below it (the confirmation): a relief that stops at speed
+            # overshoots, and on near-parallel legs the overshoot is internal force.
+            k = relief.stiffness_met(forces, self.executor.q)
+            if relief.confirming:
+                return np.zeros_like(forces)
+            v = -RELIEF_GAIN / (min(k or math.inf, self.config.stiffness) * self.config.period) * forces
+            fastest = float(np.max(np.abs(v)))
+            cap = relief.speed * min(1.0, float(np.max(np.abs(forces))) / (2.0 * relief.release_force))
+            if fastest > cap:
+                v = v * (cap / fastest)
+            elif k is None and 0.0 < fastest < RELIEF_MIN_SHARE * cap:
+                v = v * (RELIEF_MIN_SHARE * cap / fastest)
+            return v
+        self._feed_force_move(relief, t_wake, velocity)
 
     def _feed_take_up(self, take: 'TakeUp', t_wake: float) -> None:
         """One cycle of a take-up: every slack leg shortens at the take-up's speed, the taut
         ones hold; once all are taut (or it stopped short) the command decelerates and holds."""
+        self._feed_force_move(take, t_wake, lambda forces: np.where(take.slack(forces), -take.speed, 0.0))
+
+    def _feed_force_move(self, move: 'Relief | TakeUp', t_wake: float,
+                         velocity: Callable[[np.ndarray], np.ndarray]) -> None:
+        """One cycle of a slow move steered by the load cells (a relief, a take-up): judged on
+        the latest forces (``move.update``), moved at ``velocity(forces)`` while it runs; once
+        it has ended the command decelerates, and at rest ``move.finished`` is set."""
         forces = np.array([d.sample.force if d.sample is not None else 0.0 for d in self._drives])
         with self._exec_lock:
             ex = self.executor
-            if take.outcome is None:
-                take.update(forces, ex.q, t_wake)
-            if take.outcome is None:
-                v = np.where(take.slack(forces), -take.speed, 0.0)
+            if move.outcome is None:
+                move.update(forces, ex.q, t_wake)
+            if move.outcome is None:
+                v = velocity(forces)
                 ex.set_stream(ex.q + v * self.config.period, v, t_wake)
             elif ex.state is not ExecutionState.HOLD and not ex.braking:
                 ex.stream_stale()
             elif ex.state is ExecutionState.HOLD:
-                take.finished.set()
+                move.finished.set()
 
     # ------------------------------------------------------------------ protective stop
     def _begin_fault_stop(self, t_wake: float) -> None:
