@@ -69,11 +69,27 @@ def _rcl_logging_stays_up():
 TEST_LIMIT_S = 420.0
 
 
+_watchdog_out = None
+
+
+def pytest_configure(config):
+    """Where the watchdog writes: the run's real stderr. pytest's capture has fd 2 pointing
+    at a temporary file by now (lost when the watchdog ends the process); its capture
+    manager keeps the original, else a file next to the tests."""
+    global _watchdog_out
+    try:
+        capman = config.pluginmanager.getplugin('capturemanager')
+        fd = os.dup(capman._global_capturing.err.targetfd_save)
+        _watchdog_out = os.fdopen(fd, 'w')
+    except Exception:  # noqa: BLE001 - no capture (-s) or another pytest: fall back to a file
+        _watchdog_out = open(os.path.join(os.path.dirname(__file__), '..', 'test-watchdog.txt'), 'w')
+
+
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item, nextitem):
     import faulthandler
-    import sys
-    faulthandler.dump_traceback_later(TEST_LIMIT_S, exit=True, file=sys.__stderr__)
+    if _watchdog_out is not None:
+        faulthandler.dump_traceback_later(TEST_LIMIT_S, exit=True, file=_watchdog_out)
     try:
         yield
     finally:
