@@ -354,12 +354,11 @@ class CycleMixin:
             # rigid (1e7 N·m/rad) meets only the body through the mechanism: paced by the
             # legs' figure it would crawl at micro-radians per second. Until a step was
             # measured it moves at RELIEF_MIN_SHARE of its speed.
-            # Within twice the release force it slows in proportion, and it holds while the
-            # forces read below it (the confirmation): a relief that stops at speed
-            # overshoots, and on near-parallel legs the overshoot is internal force.
+            # Within twice the release force it slows in proportion: a relief that stops at
+            # speed overshoots, and on near-parallel legs the overshoot is internal force.
+            # It goes on while the forces confirm below the release force (a body still
+            # settling would load the legs again).
             k = relief.stiffness_met(forces, self.executor.q)
-            if relief.confirming:
-                return np.zeros_like(forces)
             v = -RELIEF_GAIN / (min(k or math.inf, self.config.stiffness) * self.config.period) * forces
             fastest = float(np.max(np.abs(v)))
             cap = relief.speed * min(1.0, float(np.max(np.abs(forces))) / (2.0 * relief.release_force))

@@ -311,12 +311,6 @@ class Relief:
         self._last: tuple[np.ndarray, np.ndarray] | None = None
         self._met: deque = deque(maxlen=RELIEF_STIFFNESS_WINDOW)
 
-    @property
-    def confirming(self) -> bool:
-        """Every force has read below the release force since the last sample (not yet for
-        the whole confirmation)."""
-        return self._below > 0 and self.outcome is None
-
     def stiffness_met(self, forces: np.ndarray, q: np.ndarray) -> float | None:
         """The stiffness the relief meets: |delta f| / |delta q| between the commands of the
         last cycles (the largest of the last :data:`RELIEF_STIFFNESS_WINDOW`; load-cell noise
