@@ -50,7 +50,7 @@ FAULT_BRAKE_LIMIT_S = 1.0
 RPDO_REFRESH = 50
 #: a relief's force gain as a share of the stiffest direction's one-cycle limit
 RELIEF_GAIN = 0.2
-#: a relief's first steps, before it has measured the stiffness it meets, as a share of its speed
+#: the slowest a relief on rotary joints moves, as a share of its speed
 RELIEF_MIN_SHARE = 0.25
 
 
@@ -348,24 +348,17 @@ class CycleMixin:
         the release force; then the command decelerates and holds."""
         def velocity(forces: np.ndarray) -> np.ndarray:
             # steepest descent of the elastic energy: dE/dq_i = f_i (the legs and the body at
-            # equilibrium). The gain keeps the stiffest direction from stepping past zero in
-            # one cycle: k g T = RELIEF_GAIN < 1, k the stiffness the relief meets (what the
-            # load cells said of its last steps), at most the legs' own. A joint modelled
-            # rigid (1e7 N·m/rad) meets only the body through the mechanism: paced by the
-            # legs' figure it would crawl at micro-radians per second. Until a step was
-            # measured it moves at RELIEF_MIN_SHARE of its speed.
-            # Within twice the release force it slows in proportion: a relief that stops at
-            # speed overshoots, and on near-parallel legs the overshoot is internal force.
-            # It goes on while the forces confirm below the release force (a body still
-            # settling would load the legs again).
-            k = relief.stiffness_met(forces, self.executor.q)
-            v = -RELIEF_GAIN / (min(k or math.inf, self.config.stiffness) * self.config.period) * forces
+            # equilibrium). The gain keeps the stiffest direction (a leg against its own
+            # stiffness k) from stepping past zero in one cycle: k g T = RELIEF_GAIN < 1.
+            gain = RELIEF_GAIN / (self.config.stiffness * self.config.period)
+            v = -gain * forces
             fastest = float(np.max(np.abs(v)))
-            cap = relief.speed * min(1.0, float(np.max(np.abs(forces))) / (2.0 * relief.release_force))
-            if fastest > cap:
-                v = v * (cap / fastest)
-            elif k is None and 0.0 < fastest < RELIEF_MIN_SHARE * cap:
-                v = v * (RELIEF_MIN_SHARE * cap / fastest)
+            if fastest > relief.speed:
+                v = v * (relief.speed / fastest)
+            elif self.limits.unit == 'rad' and 0.0 < fastest < RELIEF_MIN_SHARE * relief.speed:
+                # a rotary joint modelled rigid (1e7 N·m/rad) meets only the body through the
+                # mechanism: paced by its own figure it would crawl at micro-radians per second
+                v = v * (RELIEF_MIN_SHARE * relief.speed / fastest)
             return v
         self._feed_force_move(relief, t_wake, velocity)
 

@@ -278,8 +278,6 @@ def interpolation_period(period: float) -> tuple[int, int]:
 
 #: a relief stops this far (m or rad) from an actuator's stroke end
 STROKE_MARGIN = 0.001
-#: cycles over which a relief keeps the largest stiffness it met (Relief.stiffness_met)
-RELIEF_STIFFNESS_WINDOW = 8
 
 
 class Relief:
@@ -308,20 +306,6 @@ class Relief:
         self.milli = 'mm' if unit == 'm' else f'm{unit}'
         self.outcome: str | None = None        # None while moving; '' unloaded; else why it stopped
         self.finished = threading.Event()
-        self._last: tuple[np.ndarray, np.ndarray] | None = None
-        self._met: deque = deque(maxlen=RELIEF_STIFFNESS_WINDOW)
-
-    def stiffness_met(self, forces: np.ndarray, q: np.ndarray) -> float | None:
-        """The stiffness the relief meets: |delta f| / |delta q| between the commands of the
-        last cycles (the largest of the last :data:`RELIEF_STIFFNESS_WINDOW`; load-cell noise
-        over a small step only makes it larger, the relief slower); ``None`` before a step."""
-        f, q = np.asarray(forces, dtype=float), np.asarray(q, dtype=float)
-        if self._last is not None:
-            dq = float(np.linalg.norm(q - self._last[1]))
-            if dq > 0.0:
-                self._met.append(float(np.linalg.norm(f - self._last[0])) / dq)
-        self._last = (f.copy(), q.copy())
-        return max(self._met) if self._met else None
 
     def update(self, forces: np.ndarray, q: np.ndarray, t: float) -> None:
         """Judge the latest forces and travel: unloaded, or stopped short (and why)."""
