@@ -421,9 +421,7 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
                                timeout=0.5, what='drive fault reset', raise_=False)
                 finally:
                     self._reset_pulse = False
-            ranges = [self.limits.stroke_of(i) for i in range(len(self.names))]
-            if max_travel is None:
-                max_travel = 0.5 * min(hi - lo for lo, hi in ranges)
+            ranges, max_travel = self._slow_move_ranges(max_travel)
             relief = Relief(release_force=release, speed=speed_share * self.limits.v_max,
                             max_travel=max_travel, deadline=time.perf_counter() + timeout,
                             start=fb.position, forces=fb.force, relievable=RELIEVABLE,
@@ -461,6 +459,14 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
             return (f'relieved: forces {np.round(relief.forces_before, 1).tolist()} N -> '
                     f'{np.round(after, 1).tolist()} N (below safety.release_force = {release:g} N) '
                     f'after {relief.travel * 1e3:.2f} {relief.milli}; call recover')
+
+    def _slow_move_ranges(self, max_travel: float | None) -> tuple[list[tuple[float, float]], float]:
+        """Each actuator's range, and the most a relief or take-up may travel: ``max_travel``,
+        by default half the shortest range."""
+        ranges = [self.limits.stroke_of(i) for i in range(len(self.names))]
+        if max_travel is None:
+            max_travel = 0.5 * min(hi - lo for lo, hi in ranges)
+        return ranges, max_travel
 
     @property
     def taking_up(self) -> bool:
@@ -512,9 +518,7 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
                 if self.executor.moving:
                     raise DriverOperationError('take-up starts from rest: a motion is running')
             fb = self.feedback()
-            ranges = [self.limits.stroke_of(i) for i in range(len(self.names))]
-            if max_travel is None:
-                max_travel = 0.5 * min(hi - lo for lo, hi in ranges)
+            ranges, max_travel = self._slow_move_ranges(max_travel)
             speed = min(speed_share * self.limits.v_max,
                         below / (self.config.stiffness * TAKE_UP_LAG_SYNCS * self.config.period))
             if timeout is None:
