@@ -15,6 +15,45 @@ os.environ.setdefault('MPLBACKEND', 'Agg')
 os.environ.setdefault('RCUTILS_LOGGING_BUFFERED_STREAM', '1')
 
 
+def _clean_zombie_shm() -> str:
+    """Fast DDS's own ``fastdds shm clean``: delete the shared-memory ports and segments of
+    processes that are gone (a segment whose lock file nobody holds), before this run's
+    first participant. A killed DDS process leaves its segments in /dev/shm; once, with
+    hundreds of them from a day of killed runs, a new participant spun for good in boost's
+    ``managed_open_or_create_impl::priv_open_or_create`` opening a half-made port. Segments
+    of live processes (another run, a user's nodes) keep their lock and are left alone.
+
+    The tool ships with the ``ros-fastdds`` wheel (``<prefix>/tools/fastdds``); its command
+    line also imports psutil, which ``shm clean`` does not use, so its ``Clean`` class is
+    loaded alone. Without the tool (another ROS install), nothing is done."""
+    import contextlib
+    import importlib.util
+    import io
+    import sys
+    path = os.path.join(sys.prefix, 'tools', 'fastdds', 'shm', 'clean.py')
+    if not os.path.isfile(path):
+        return f'no {path}: stale Fast DDS segments not cleaned'
+    spec = importlib.util.spec_from_file_location('_fastdds_shm_clean', path)
+    module = importlib.util.module_from_spec(spec)
+    out = io.StringIO()
+    try:
+        spec.loader.exec_module(module)
+        with contextlib.redirect_stdout(out):
+            module.Clean().run(force=False)
+    except Exception as exc:  # noqa: BLE001 - a cleanup that fails must not fail the run
+        return f'fastdds shm clean failed: {exc!r}'
+    return ' '.join(out.getvalue().split())
+
+
+def pytest_sessionstart(session):
+    session.config._fastdds_shm_clean = _clean_zombie_shm()
+
+
+def pytest_report_header(config):
+    report = getattr(config, '_fastdds_shm_clean', None)
+    return [report] if report else []
+
+
 @pytest.fixture
 def ros(_rcl_logging_stays_up):
     """A fresh :class:`ros_helpers.Ros` (own executor, its nodes destroyed after the test) on
