@@ -819,3 +819,108 @@ def test_an_accepted_plan_carries_its_minimum_wrench_capacity(mech, cfg):
     ts = np.linspace(0.0, 1.5, 400)
     want = np.min([_lumbar_capacity(p) for p in plan.trajectory.sample_many(ts)[0]], axis=0)
     np.testing.assert_allclose(got, want, rtol=2e-3)
+
+
+def test_a_goal_at_the_edge_of_a_legs_reach_is_planned_within_what_the_driver_accepts():
+    """3-RRR neck brace: a goal 0.1 mm inside leg 2's reach (its two links nearly straight),
+    from a random-goal run (scripts/random_goals.py neck_brace_3rrr --seed 3, goal 10).
+    There ``dq2/dx`` is ~200 x its value at the start and joint 2's acceleration peaks in
+    the last 10 ms. The planner once read 0.77 of that peak (differences on 200 samples),
+    accepted the motion, and the driver refused it ("joint 2 would accelerate at 1.03 x its
+    limit"). Oracle: the motion's true joint accelerations, second differences of the
+    inverse kinematics on 40 001 instants; and the driver's acceptance of what ik_node
+    makes of the plan."""
+    from brace_control.can.execution import PathExecutor
+    from brace_control.mechanisms import mechanism_from_config
+    from brace_control.trajectory.actuator import actuator_knots
+    from brace_control.trajectory.knots import knots_of
+    cfg = load_device_config('config/neck_brace_3rrr.yaml')
+    mech = mechanism_from_config(cfg)
+    limits = Limits.from_config(cfg, dof=3)
+    start = np.array([0.005311679354935053, 0.014689011224469292, -0.24587389317232097])
+    goal = np.array([-0.037481263337639854, 0.045833361084890514, -0.2822383339450152])
+    assert np.linalg.cond(mech.jacobian(goal)) > 1000.0          # at the edge of the reach
+    tr = cfg['trajectory']
+    plan = plan_motion(mech, start, goal, tr['profile'], limits,
+                       fitts=FittsLaw(a=tr['fitts_a'], b=tr['fitts_b'], w=tr['fitts_w']),
+                       fitts_axes=(0, 1))
+    T = plan.trajectory.duration
+    t = np.linspace(0.0, T, 40001)
+    q = np.asarray(mech.inverse_batch(plan.trajectory.sample_many(t)[0]), dtype=float)
+    qdd = np.gradient(np.gradient(q, t, axis=0), t, axis=0)[5:-5]
+    a_max = float(cfg['actuator']['max_acceleration'])
+    v_max = float(cfg['actuator']['max_velocity'])
+    peak = float(np.max(np.abs(qdd))) / a_max
+    assert peak <= 1.0, f'the motion accelerates a joint at {peak:.3f} x its limit'
+    assert peak <= 1.05 * limits.limit_margin, (peak, limits.limit_margin)
+    ex = PathExecutor(3, v_max=v_max, a_max=a_max, period=1.0 / float(cfg['can']['sync_rate_hz']))
+    ex.anchor(q[0], t=0.0)
+    knots = actuator_knots(mech, knots_of(plan.trajectory))
+    assert ex.load(knots, 0.0, 1, now=0.0) is None, ex.events[-1].reason
+
+
+DEVICES = ('lumbar_brace', 'lumbar_brace_v2', 'neck_brace_4rpr', 'neck_brace_3rrr', 'neck_brace_2r',
+           'upper_limb_trainer', 'shoulder', 'continuum')
+
+
+def _random_pose(mech, rng: np.random.Generator) -> np.ndarray:
+    """A pose of the device's workspace: actuator values 3-97 % of their ranges through the
+    forward kinematics nearest home (a redundant device: a pose near home whose lengths are
+    in range), kept when its inverse kinematics is in range (as scripts/random_goals.py)."""
+    home = np.asarray(mech.home_pose, dtype=float)
+    lo, hi = (np.asarray(v, dtype=float) for v in mech.actuator_limits)
+    for _ in range(1000):
+        try:
+            if lo.size == home.size or lo.size == 1:
+                pose = np.asarray(mech.forward_nearest(rng.uniform(lo + 0.03 * (hi - lo),
+                                                                   hi - 0.03 * (hi - lo)), home), float)
+            else:
+                pose = home + np.array([0.08, 0.08, 0.6][:home.size]) * rng.uniform(-1, 1, home.size)
+            q = np.asarray(mech.inverse(pose), dtype=float)
+        except ValueError:
+            continue
+        if mech.in_workspace(pose) and np.all(q >= lo) and np.all(q <= hi):
+            return pose
+    raise AssertionError('no random pose found')
+
+
+@pytest.mark.parametrize('device', DEVICES)
+def test_every_motion_the_planner_accepts_is_one_ik_node_converts_and_the_driver_accepts(device):
+    """The contract between the nodes, on random start/goal pairs across each device's
+    workspace: a plan trajectory_node accepts becomes actuator knots in ik_node (every pose
+    with an inverse kinematics) and passes the driver's own check of the interpolated motion
+    (stroke, speed, acceleration: PathExecutor.load). A goal the planner refuses is refused
+    with a reason; one it accepts must never be refused downstream ("accepted", then
+    "aborted: its motion was rejected", seen on the 3-RRR and the shoulder)."""
+    from brace_control.can.execution import PathExecutor
+    from brace_control.mechanisms import mechanism_from_config
+    from brace_control.nodes.msgs import pose_kind
+    from brace_control.trajectory.actuator import actuator_knots
+    from brace_control.trajectory.knots import knots_of
+    cfg = load_device_config(f'config/{device}.yaml')
+    mech = mechanism_from_config(cfg)
+    limits = Limits.from_config(cfg, dof=mech.dof)
+    tr = cfg['trajectory']
+    fitts = FittsLaw(a=tr['fitts_a'], b=tr['fitts_b'], w=tr['fitts_w'])
+    axes = (0, 1) if pose_kind(mech) in ('planar', 'xy') else None
+    lo, hi = (np.asarray(v, dtype=float) for v in mech.actuator_limits)
+    rng = np.random.default_rng(7)
+    accepted = 0
+    for _ in range(40):
+        if accepted == 8:
+            break
+        start, goal = _random_pose(mech, rng), _random_pose(mech, rng)
+        try:
+            plan = plan_motion(mech, start, goal, tr['profile'], limits, fitts=fitts, fitts_axes=axes)
+        except PlanRejected as exc:
+            assert str(exc)
+            continue
+        accepted += 1
+        knots = actuator_knots(mech, knots_of(plan.trajectory, breaks=getattr(plan.trajectory, 'breaks', None)))
+        ex = PathExecutor(mech.n_actuators, v_max=cfg['actuator']['max_velocity'],
+                          a_max=cfg['actuator']['max_acceleration'],
+                          period=1.0 / float(cfg['can']['sync_rate_hz']))
+        ex.anchor(knots.positions[0], t=0.0)
+        reason = ex.load(knots, 0.0, 1, now=0.0, lo=lo, hi=hi)
+        assert reason is None, (start.tolist(), goal.tolist(), reason)
+    assert accepted >= 3          # (the shoulder's random pairs mostly cross a singularity)
