@@ -924,3 +924,28 @@ def test_every_motion_the_planner_accepts_is_one_ik_node_converts_and_the_driver
         reason = ex.load(knots, 0.0, 1, now=0.0, lo=lo, hi=hi)
         assert reason is None, (start.tolist(), goal.tolist(), reason)
     assert accepted >= 3          # (the shoulder's random pairs mostly cross a singularity)
+
+
+def test_a_long_path_goal_is_planned_within_what_the_driver_accepts():
+    """A nav_msgs/Path goal of many close poses (the lumbar brace, 300 poses over 50 mrad and
+    a 10 mm arc): the via-point minimum-jerk motion through them bends at every via, between
+    the 200 path samples. Checked by differences on those samples, a 1000-pose path was
+    planned at 4.5 s and the driver refused it (joint 3 at 9.9 x its acceleration limit).
+    Oracle: the driver's check of what ik_node makes of the plan."""
+    from brace_control.can.execution import PathExecutor
+    from brace_control.mechanisms import mechanism_from_config
+    from brace_control.trajectory.actuator import actuator_knots
+    from brace_control.trajectory.knots import knots_of
+    cfg = load_device_config(CONFIG)
+    mech = mechanism_from_config(cfg)
+    limits = Limits.from_config(cfg, dof=3)
+    home = np.array([0.0, 0.39, 0.0873])
+    u = np.linspace(0.0, 1.0, 301)[1:]
+    poses = home + np.column_stack([0.0 * u, 0.01 * np.sin(np.pi * u), 0.05 * u])
+    plan = plan_motion(mech, home, poses[-1], Profile.MINIMUM_JERK, limits, via=poses[:-1],
+                       fitts=FittsLaw(), fitts_axes=(0, 1))
+    knots = actuator_knots(mech, knots_of(plan.trajectory, breaks=plan.trajectory.breaks))
+    ex = PathExecutor(3, v_max=cfg['actuator']['max_velocity'], a_max=cfg['actuator']['max_acceleration'],
+                      period=1.0 / float(cfg['can']['sync_rate_hz']))
+    ex.anchor(knots.positions[0], t=0.0)
+    assert ex.load(knots, 0.0, 1, now=0.0) is None, ex.events[-1].reason
