@@ -115,7 +115,10 @@ def call_trigger(node: Any, service: str, *, timeout: float = 5.0,
     out; only the answer is lost. A service in :data:`IDEMPOTENT_SERVICES` (by its last
     name component) is therefore asked again after ``resend_s`` (default :data:`RESEND_S`)
     without an answer, within ``timeout``; any other is asked once (``resend_s`` given:
-    that service too).
+    that service too). The requests asked before stay awaited: the first answer that comes
+    is the one returned. A request that was only slow (an enable that takes a cable
+    brace's slack up for seconds) answers first, with what it did; the repeat, served
+    after it, would only say the state it found.
     """
     import rclpy
     from std_srvs.srv import Trigger
@@ -126,23 +129,30 @@ def call_trigger(node: Any, service: str, *, timeout: float = 5.0,
         if not client.wait_for_service(timeout_sec=timeout):
             return False, f'{service} not available'
         deadline = time.monotonic() + timeout
-        sent = 0
-        while True:
-            future = client.call_async(Trigger.Request())
-            sent += 1
-            end = deadline if resend_s is None else min(deadline, time.monotonic() + resend_s)
-            if executor is None:
-                rclpy.spin_until_future_complete(node, future, timeout_sec=max(end - time.monotonic(), 0.0))
-            else:
-                while not future.done() and time.monotonic() < end:
-                    time.sleep(0.005)
-            if future.done():
-                res = future.result()
-                return bool(res.success), str(res.message)
-            future.cancel()
-            if time.monotonic() >= deadline:
-                asked = f' (asked {sent} times)' if sent > 1 else ''
-                return False, f'{service}: no answer within {timeout} s{asked}'
+        futures: list[Any] = []
+
+        def answered() -> Any:
+            return next((f for f in futures if f.done()), None)
+        try:
+            while True:
+                futures.append(client.call_async(Trigger.Request()))
+                end = deadline if resend_s is None else min(deadline, time.monotonic() + resend_s)
+                while answered() is None and time.monotonic() < end:
+                    if executor is None:
+                        rclpy.spin_once(node, timeout_sec=min(0.05, max(end - time.monotonic(), 0.0)))
+                    else:
+                        time.sleep(0.005)
+                first = answered()
+                if first is not None:
+                    res = first.result()
+                    return bool(res.success), str(res.message)
+                if time.monotonic() >= deadline:
+                    asked = f' (asked {len(futures)} times)' if len(futures) > 1 else ''
+                    return False, f'{service}: no answer within {timeout} s{asked}'
+        finally:
+            for f in futures:
+                if not f.done():
+                    f.cancel()
     finally:
         node.destroy_client(client)
 

@@ -6,6 +6,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 
 import pytest
 import rclpy
@@ -161,5 +162,53 @@ def test_call_trigger_asks_an_idempotent_service_again_when_its_answer_is_lost(s
         assert ok is outcome[0] and outcome[1] in message, message
         assert len(requests) == asked
         executor.shutdown(timeout_sec=1.0)
+    finally:
+        rclpy.shutdown(context=ctx)
+
+
+@pytest.mark.ros
+def test_call_trigger_returns_a_slow_first_answer_not_the_repeat_served_after_it():
+    """``enable`` on a cable brace after a relief takes the slack up for seconds, longer
+    than :data:`~brace_control.bringup.RESEND_S`: ``call_trigger`` asks again, and the
+    driver serves the repeat after the first (one service at a time). The first answer,
+    with what the enable did, is the one returned; the repeat's ("already enabled") is not."""
+    import threading
+
+    from rclpy.callback_groups import ReentrantCallbackGroup
+    from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
+    from std_srvs.srv import Trigger
+
+    from brace_control.bringup import RESEND_S, call_trigger
+
+    ctx = Context()
+    rclpy.init(context=ctx)
+    try:
+        server = rclpy.create_node('slow_server', context=ctx)
+        requests = []
+        one_at_a_time = threading.Lock()
+
+        def handle(request, response):
+            requests.append(request)
+            with one_at_a_time:
+                if len(requests) == 1:
+                    time.sleep(RESEND_S + 0.5)
+                    response.success, response.message = True, 'OPERATION ENABLED; cables taken up'
+                else:
+                    response.success, response.message = True, 'OPERATION ENABLED'
+            return response
+
+        server.create_service(Trigger, '~/enable', handle, callback_group=ReentrantCallbackGroup())
+        client = rclpy.create_node('caller', context=ctx)
+        executors = [MultiThreadedExecutor(num_threads=4, context=ctx), SingleThreadedExecutor(context=ctx)]
+        executors[0].add_node(server)
+        executors[1].add_node(client)
+        for e in executors:
+            threading.Thread(target=e.spin, daemon=True).start()
+        ok, message = call_trigger(client, '/slow_server/enable', timeout=RESEND_S + 3.0,
+                                   executor=executors[1])
+        assert ok and message == 'OPERATION ENABLED; cables taken up', message
+        assert len(requests) == 2
+        for e in executors:
+            e.shutdown(timeout_sec=1.0)
     finally:
         rclpy.shutdown(context=ctx)
