@@ -155,7 +155,9 @@ SCHEMA: dict[str, Param] = {
     'trajectory.fitts_a': Param(0.2, "Fitts' law intercept a", (0.0, 60.0), unit='s'),
     'trajectory.fitts_b': Param(0.3, "Fitts' law slope b", (0.0, 60.0), unit='s/bit'),
     'trajectory.fitts_w': Param(0.01, "Fitts' law target width W", (1e-6, 10.0), unit='m or rad'),
-    'trajectory.path_check_samples': Param(200, 'samples of a path checked against the limits', (2, 100000)),
+    'trajectory.path_check_samples': Param(200, 'samples of a path checked for stroke, workspace and singularity (its '
+                                           'actuator speed and acceleration are checked on the knots the driver runs)',
+                                           (2, 100000)),
     'trajectory.min_wrench_capacity': _ro([0.0], 'the smallest wrench capacity per wrench axis (the '
                                           "mechanism's wrench_axes) a planned path may pass; 0: not checked",
                                           (0.0, _INF), 'N or N·m'),
