@@ -168,6 +168,9 @@ class Probe:
     def __init__(self, node) -> None:
         self.node = node
         self.lock = threading.Lock()
+        #: topic -> (messages received, monotonic time of the last): a failure tells a probe
+        #: that heard nothing more from one that missed one sample
+        self.heard: dict[str, tuple[int, float]] = {}
         self.statuses: list[tuple[float, DiagnosticStatus]] = []    # (arrival, message)
         self.driver: list[DiagnosticStatus] = []
         self.trajectories: list[JointTrajectory] = []
@@ -179,8 +182,10 @@ class Probe:
         self.sim_joints: list[JointState] = []
         self.faults: list[str] = []
         self.cycle = ''                                # the driver's last SYNC cycle status
-        node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._on_diagnostics, 50)
-        node.create_subscription(DiagnosticStatus, topics.GOAL_STATUS, self._on_status, topics.STATUS_QOS)
+        node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS,
+                                 self._heard(topics.DIAGNOSTICS, self._on_diagnostics), 50)
+        node.create_subscription(DiagnosticStatus, topics.GOAL_STATUS,
+                                 self._heard(topics.GOAL_STATUS, self._on_status), topics.STATUS_QOS)
         for typ, topic, box, qos in (
                 (DiagnosticStatus, topics.DRIVER_STATE, self.driver, topics.LATCHED_QOS),
                 (JointTrajectory, topics.ACTUATOR_TRAJECTORY, self.trajectories, topics.TRAJECTORY_QOS),
@@ -190,8 +195,19 @@ class Probe:
                 (JointState, topics.JOINT_STATES, self.joints, RELIABLE_10),
                 (PoseStamped, topics.SIM_POSE, self.sim_poses, RELIABLE_10),
                 (JointState, topics.SIM_JOINT_STATES, self.sim_joints, RELIABLE_10)):
-            node.create_subscription(typ, topic, self._keep(box), qos)
+            node.create_subscription(typ, topic, self._heard(topic, self._keep(box)), qos)
         self.goal_pub = node.create_publisher(PoseStamped, topics.POSE_GOAL, topics.GOAL_QOS)
+
+    def _heard(self, topic: str, cb):
+        def counted(msg) -> None:
+            n, _ = self.heard.get(topic, (0, 0.0))
+            self.heard[topic] = (n + 1, time.monotonic())
+            cb(msg)
+        return counted
+
+    def hearing(self) -> str:
+        now = time.monotonic()
+        return ', '.join(f'{topic} {n} ({now - t:.1f} s ago)' for topic, (n, t) in sorted(self.heard.items()))
 
     def _on_diagnostics(self, msg) -> None:
         for st in msg.status:
@@ -238,7 +254,7 @@ class Probe:
                             f'{[(e["goal_id"], e["state"], e["reason"]) for e in self.events()]}; '
                             f'last joint positions {last}; driver faults {self.faults}; '
                             f'driver states {[s.message for s in self.driver][-3:]}; '
-                            f'SYNC cycle: {self.cycle}')
+                            f'SYNC cycle: {self.cycle}; heard: {self.hearing()}')
             time.sleep(0.02)
 
     def send(self, pose, frame='brace_base') -> None:
