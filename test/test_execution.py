@@ -153,3 +153,32 @@ def test_a_stop_drops_every_scheduled_trajectory():
     assert not ex.moving
     for t, q in run(ex, T_SYNC, 0.5):
         assert np.array_equal(q, Q0), t
+
+
+@pytest.mark.parametrize('stop_at', [0.05, 0.1, 0.3, 0.44, 0.6])
+def test_a_brake_early_in_a_motion_is_short_and_always_within_the_acceleration_limit(stop_at):
+    """A stop (cancel, soft limit) at any instant of a minimum-jerk move of 0.9 rad over
+    0.88 s (a 3-RRR joint: 2 rad/s, 15 rad/s^2): every commanded acceleration, by
+    differences of the commanded speed at the SYNCs, is within a_max; the joint rests
+    short of the goal. 50 ms into the move the brake, once sized on the path's next whole
+    second (the motion's peak speed ahead), ran 0.146 rad while the path sped up under it
+    and a stiff neck's moment went from 1 to 2 N·m; sized on the stretch it passes, it
+    runs 0.051 rad."""
+    T, A, a_max = 0.88, 0.9, 15.0
+    move = Quintic([0.0] * 3, [0.0] * 3, [0.0] * 3, [A, 0.0, 0.0], T)
+    ex = PathExecutor(3, v_max=2.0, a_max=a_max, period=T_SYNC)
+    ex.anchor(np.zeros(3), t=0.0)
+    assert ex.load(move.knots(0.005), 0.0, 1, now=0.0) is None
+    run(ex, 0.0, stop_at)
+    q_stop = ex.q[0]
+    ex.stop('test', now=stop_at)
+    qs, vs = [], []
+    for k in range(int(round(stop_at / T_SYNC)) + 1, int(round((stop_at + 1.5) / T_SYNC))):
+        q, v = ex.step(k * T_SYNC)
+        qs.append(q[0])
+        vs.append(v[0])
+    acc = np.abs(np.diff(vs)) / T_SYNC
+    assert np.max(acc) <= a_max * 1.001, np.max(acc)
+    assert qs[-1] < A and abs(vs[-1]) < 1e-9
+    if stop_at <= 0.05:
+        assert qs[-1] - q_stop < 0.06, qs[-1] - q_stop
