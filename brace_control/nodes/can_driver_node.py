@@ -221,8 +221,7 @@ class CanDriverNode(LifecycleNode):
         #: a planar RPR's legs in plain floats (the wrench check's J^T f), None: the mechanism's
         self._legs = None if self.mechanism is None else self._float_legs()
         self._wrench_limit = np.asarray(self.cfg['safety']['max_wrench'], float)
-        self._wrench_trend: deque = deque(maxlen=16)     # (monotonic s, |wrench| per axis, q)
-        self._force_trend: deque = deque(maxlen=16)      # (monotonic s, |force| per actuator, q)
+        self._wrench_trend: deque = deque(maxlen=16)     # (monotonic s, |wrench| per axis)
         self._last_faults: tuple = ()
         # services take up to seconds (402 transitions, braking, a relief): their work runs in
         # a thread and the callback awaits it (_trigger), so one thread of an executor serves
@@ -801,7 +800,6 @@ class CanDriverNode(LifecycleNode):
                                          effort=fb.force, stamp=stamp))
         if m.state is MasterState.ENABLED:
             self._check_wrench(fb.position, fb.force)
-            self._watch_forces(np.asarray(fb.position, float), np.asarray(fb.force, float))
 
     def _wrench(self, q: np.ndarray, forces: np.ndarray) -> np.ndarray | None:
         """The platform wrench of measured positions and efforts: the pose by
@@ -867,20 +865,6 @@ class CanDriverNode(LifecycleNode):
             self._watch_wrench(np.abs(w[:n]), self._wrench_limit[:n], np.asarray(q, float),
                                time.monotonic())
 
-    def _watch_forces(self, q: np.ndarray, forces: np.ndarray) -> None:
-        """The same prediction as :meth:`_watch_wrench` for each actuator's load cell against
-        ``safety.force_limit``: a motion whose force would pass the hard limit by its end is
-        braked from half that limit up, before the soft limit's own brake (from
-        ``safety.soft_force_limit``, 0.8 of it) could only overshoot into it (the trainer's
-        crank against the arm: 4 of 5 N·m at the soft limit, 5.0 at the end of its brake)."""
-        if not np.all(np.isfinite(forces)):
-            return
-        limit = np.full(forces.size, self.master_config.limits.force_limit)
-        unit = 'N' if self.master_config.limits.unit == 'm' else 'N·m'
-        self._watch_load(self._force_trend, np.abs(forces), limit, q, time.monotonic(),
-                         lambda j: (f'{self.names[j]}\'s load cell', unit),
-                         'soft force limit', 'safety.force_limit')
-
     def _watch_wrench(self, load: np.ndarray, limit: np.ndarray, q: np.ndarray, now: float) -> None:
         """The soft tier of the wrench limit (SAFETY.md 14 for the platform wrench): a motion
         whose wrench on the body rises so that, at its rise per actuator displacement over
@@ -891,17 +875,7 @@ class CanDriverNode(LifecycleNode):
         fixed share of the limit. Looked at from half the limit up (the extrapolation at
         most doubles the load), so a motion heading past the limit stops with room to brake;
         a rise within the load cells' noise (:data:`SOFT_WRENCH_RISE`) is no rise."""
-        def describe(j: int) -> tuple[str, str]:
-            axis, unit = _wrench_axis(self.mechanism, j)
-            return f'the platform {axis}', unit
-        self._watch_load(self._wrench_trend, load, limit, q, now, describe,
-                         'soft wrench limit', 'safety.max_wrench')
-
-    def _watch_load(self, trend: deque, load: np.ndarray, limit: np.ndarray, q: np.ndarray,
-                    now: float, describe: Callable[[int], tuple[str, str]], tier: str,
-                    limit_name: str) -> None:
-        """The soft tiers' prediction (:meth:`_watch_wrench`): ``load`` (per axis or
-        actuator) against ``limit``, ``describe(j)`` its name and unit."""
+        trend = self._wrench_trend
         trend.append((now, load, q))
         if not np.any(load > SOFT_WRENCH_FLOOR * limit):
             return
@@ -919,10 +893,10 @@ class CanDriverNode(LifecycleNode):
         if not hit.size:
             return
         j = int(hit[0])
-        what, unit = describe(j)
-        reason = (f'{tier}: {what} at {load[j]:.1f} {unit}, rising '
+        axis, unit = _wrench_axis(self.mechanism, j)
+        reason = (f'soft wrench limit: the platform {axis} at {load[j]:.1f} {unit}, rising '
                   f'{rise[j]:.2f} {unit} in the last {moved * 1e3:.2f} mm (or mrad) of the motion, '
-                  f'would reach {ahead[j]:.1f} {unit} by its end, above {limit_name} = '
+                  f'would reach {ahead[j]:.1f} {unit} by its end, above safety.max_wrench = '
                   f'{limit[j]:g} {unit}; decelerated along the path, holding')
         if self.master.soft_stop(reason):
             trend.clear()
