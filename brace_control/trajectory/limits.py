@@ -208,7 +208,7 @@ def check_path(mech: 'Mechanism', trajectory: Trajectory, limits: Limits, *,
     n = max(int(samples or limits.samples), 2)
     T = trajectory.duration
     ts = np.linspace(0.0, T, n)
-    P, V, _ = trajectory.sample_many(ts)
+    P, _, _ = trajectory.sample_many(ts)
     names = tuple(getattr(mech, 'actuator_names', ()))
     finite = np.all(np.isfinite(P), axis=1)
     Q = np.asarray(mech.inverse_batch(np.where(finite[:, None], P, 0.0)), dtype=float)
