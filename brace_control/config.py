@@ -17,6 +17,7 @@ is a :class:`ConfigError` naming the key; absent parameters get the schema's def
 """
 from __future__ import annotations
 
+import os
 import re
 from collections.abc import Mapping
 from pathlib import Path
@@ -30,7 +31,7 @@ from .schema import ConfigError
 
 __all__ = [
     'DeviceConfig', 'ConfigError', 'load_device_config', 'flatten_parameters',
-    'points', 'config_dir', 'resolve_device_file', 'as_device_config',
+    'points', 'config_dir', 'resolve_device_file', 'as_device_config', 'read_yaml',
 ]
 
 
@@ -39,6 +40,21 @@ class _RosYamlLoader(yaml.SafeLoader):
     ``1.0e-6`` and ``.5`` are floats (YAML 1.1 makes them strings)."""
 
 
+def _unique_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode, deep: bool = False) -> dict:
+    """A YAML mapping whose keys are each given once (PyYAML keeps the last silently: a
+    ``force_limit`` written twice would leave the second in force, unseen)."""
+    seen: dict[Any, int] = {}
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=deep)
+        line = key_node.start_mark.line + 1
+        if key in seen:
+            raise ConfigError(f'key {key!r} is given twice in one mapping (lines {seen[key]} and '
+                              f'{line}); keep one')
+        seen[key] = line
+    return loader.construct_mapping(node, deep=deep)
+
+
+_RosYamlLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _unique_mapping)
 _RosYamlLoader.add_implicit_resolver(
     'tag:yaml.org,2002:float',
     re.compile(r'''^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
@@ -69,6 +85,7 @@ class DeviceConfig(dict):
                  source: str | None = None) -> None:
         if not isinstance(params, Mapping):
             raise ConfigError(f'device parameters: expected a mapping, got {type(params).__name__}')
+        params = _string_keys(params)
         self.source = source if source is not None else (str(path) if path is not None else None)
         schema.validate(params, self.source)
         super().__init__(schema.with_defaults(params))
@@ -98,6 +115,38 @@ class DeviceConfig(dict):
         if not p.is_absolute() and self.path is not None:
             p = self.path.parent / p
         return p
+
+    def resolve_file(self, name: str, key: str) -> Path:
+        """The file a parameter ``key`` names, as an absolute path: relative to the YAML's
+        directory (:meth:`relative_file`). Parameters built in Python without a file
+        (``path`` is ``None``) look in the working directory, then in the package's
+        ``config/``.
+
+        :raises ConfigError: the file does not exist (naming the path tried).
+        """
+        p = self.relative_file(name)
+        if p.is_file():
+            return Path(os.path.abspath(p))
+        if self.path is None and not Path(name).is_absolute():
+            alt = config_dir() / name
+            if alt.is_file():
+                return Path(os.path.abspath(alt))
+            raise ConfigError(f'parameter {key} = {name!r}: no such file (looked at {p.resolve()} and '
+                              f'{alt}){_where_from(self.source)}')
+        raise ConfigError(f'parameter {key} = {name!r}: no such file {p.resolve()} (relative to the '
+                          f'parameter file\'s directory){_where_from(self.source)}')
+
+
+def _where_from(source: str | None) -> str:
+    return f' in {source}' if source else ''
+
+
+def _string_keys(value: Any) -> Any:
+    """Every mapping key as a string (YAML reads ``rpdo: {1: ...}`` with an integer key; ROS
+    names that parameter ``can.rpdo.1.mapping``)."""
+    if isinstance(value, Mapping):
+        return {str(k): _string_keys(v) for k, v in value.items()}
+    return value
 
 
 def as_device_config(cfg: Mapping[str, Any]) -> DeviceConfig:
@@ -140,15 +189,15 @@ def load_device_config(path: str | Path) -> DeviceConfig:
         with the closest known name for an unknown one).
     """
     p = resolve_device_file(path)
-    try:
-        doc = yaml.load(p.read_text(), Loader=_RosYamlLoader)  # noqa: S506 - a SafeLoader
-    except yaml.YAMLError as exc:
-        raise ConfigError(f'{p}: not valid YAML: {exc}') from exc
+    doc = read_yaml(p)
     if not isinstance(doc, Mapping):
         raise ConfigError(f'{p}: expected a mapping at the top level, got {type(doc).__name__}')
     params: Any = None
     if '/**' in doc:
-        params = (doc['/**'] or {}).get('ros__parameters')
+        section = doc['/**'] or {}
+        if not isinstance(section, Mapping):
+            raise ConfigError(f'{p}: "/**" must hold "ros__parameters:", got {type(section).__name__}')
+        params = section.get('ros__parameters')
     else:
         for value in doc.values():
             if isinstance(value, Mapping) and 'ros__parameters' in value:
@@ -159,6 +208,29 @@ def load_device_config(path: str | Path) -> DeviceConfig:
     if not isinstance(params, Mapping):
         raise ConfigError(f'{p}: no "ros__parameters" mapping found')
     return DeviceConfig(params, p.resolve(), source=str(p))
+
+
+def read_yaml(path: str | Path) -> Any:
+    """A YAML file as ROS 2 reads parameter files: UTF-8, numbers typed as ROS types them,
+    every key given once in its mapping.
+
+    :raises ConfigError: unreadable, not UTF-8, not YAML, or a key given twice (with where).
+    """
+    p = Path(path)
+    try:
+        text = p.read_bytes().decode('utf-8')
+    except OSError as exc:
+        raise ConfigError(f'{p}: cannot read: {exc.strerror or exc}') from None
+    except UnicodeDecodeError as exc:
+        line = p.read_bytes()[:exc.start].count(b'\n') + 1
+        raise ConfigError(f'{p}: not UTF-8 text (byte {exc.object[exc.start]:#04x} at line {line}); '
+                          'save the file as UTF-8') from None
+    try:
+        return yaml.load(text, Loader=_RosYamlLoader)  # noqa: S506 - a SafeLoader
+    except ConfigError as exc:
+        raise ConfigError(f'{p}: {exc}') from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f'{p}: not valid YAML: {exc}') from None
 
 
 def flatten_parameters(params: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:

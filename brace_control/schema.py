@@ -172,7 +172,31 @@ SCHEMA: dict[str, Param] = {
     'can.channel': _ro('brace0', 'python-can channel'),
     'can.bitrate': _ro(1000000, 'bit rate', (10000, 1000000), 'bit/s'),
     'can.node_ids': _ro([1, 2, 3], 'CANopen node id per actuator, in actuator order', (1, 127)),
-    'can.eds': _ro('lumbar_drive.eds', 'EDS file of the drives (relative to the YAML)'),
+    'can.eds': _ro('', "the drives' EDS or DCF, relative to the YAML: one file for every drive, or a "
+                   "list of one per can.node_ids entry; empty: the package's config/lumbar_drive.eds",
+                   type='str|str[]'),
+    'can.load_cell_object': _ro('', "the object carrying each actuator's load cell on its drive, "
+                                '"0xIIII:SS" (e.g. a drive\'s analog input "0x3220:1"); empty: 2401h:0, '
+                                'or 6077h:0 (torque actual) for rotary drives'),
+    'can.load_cell_node.node_id': _ro(0, 'node id of a CiA 401 analog-input module carrying the load '
+                                      'cells (0: the drives carry them, can.load_cell_object)', (0, 127)),
+    'can.load_cell_node.eds': _ro('', "the load-cell module's EDS or DCF (relative to the YAML)"),
+    'can.load_cell_node.objects': _ro(None, "the module's object per actuator, in actuator order; absent: "
+                                      '6401h:1, 6401h:2, ... (CiA 401 analog inputs)', type='str[]'),
+    'can.load_cell_node.tpdo': _ro(1, "the module's TPDO that carries them", (1, 512)),
+    'can.rpdo.*.mapping': _ro(None, 'objects the RPDO carries, "0xIIII:SS" each (ros2_canopen bus.yml '
+                              'shape); the master fills 6040h, 607Ah, 60B1h and 6060h', type='str[]'),
+    'can.rpdo.*.transmission': _ro(1, 'RPDO transmission type (0-240: applied at the next SYNC)', (0, 255)),
+    'can.rpdo.*.cob_id': _ro(0, 'RPDO COB-ID (0: the CiA 301 pre-defined one, RPDOs 1-4)', (0, 0x7FF)),
+    'can.rpdo.*.enabled': _ro(True, 'the RPDO is used (false: disabled on the drive)'),
+    'can.tpdo.*.mapping': _ro(None, 'objects the TPDO carries, "0xIIII:SS" each; the one with 6041h '
+                              'must also carry 6064h and the load cell', type='str[]'),
+    'can.tpdo.*.transmission': _ro(1, 'TPDO transmission type (1: every SYNC)', (0, 255)),
+    'can.tpdo.*.cob_id': _ro(0, 'TPDO COB-ID (0: the CiA 301 pre-defined one, TPDOs 1-4)', (0, 0x7FF)),
+    'can.tpdo.*.enabled': _ro(True, 'the TPDO is used (false: disabled on the drive)'),
+    'can.sdo_timeout': _ro(0.1, 'longest an SDO answer may take before the request is sent again '
+                           '(can.sdo_retries) or the boot fails', (0.001, 10.0), 's'),
+    'can.sdo_retries': _ro(1, 'times an unanswered SDO request is sent again', (0, 10)),
     'can.sync_rate_hz': _ro(500.0, 'SYNC / control rate', (1.0, 2000.0), 'Hz'),
     'can.joint_state_rate_hz': Param(100.0, 'joint_states publish rate', (1.0, 2000.0), unit='Hz'),
     'can.boot_timeout': _ro(3.0, 'wait for boot-up / first heartbeat', (0.05, 60.0), 's'),
@@ -479,7 +503,7 @@ def _expected(spec: Param) -> str:
     words = {'float': 'a float', 'int': 'an integer', 'bool': 'true or false', 'str': 'a string',
              'float[]': 'a list of floats', 'int[]': 'a list of integers', 'str[]': 'a list of strings', 'bool[]': 'a list of booleans',
              'number': 'a float or a list of floats', 'points': 'a list of point coordinates (floats)',
-             'int|str': 'an integer or a string'}[t]
+             'int|str': 'an integer or a string', 'str|str[]': 'a string or a list of strings'}[t]
     if spec.default is not None:
         words += f' like {spec.default!r}'
     if spec.unit:
@@ -530,6 +554,9 @@ def check_value(name: str, value: Any, spec: Param, source: str | None = None) -
         ok = isinstance(value, bool)
     elif t == 'str':
         ok = isinstance(value, str)
+    elif t == 'str|str[]':
+        ok = isinstance(value, str) or (isinstance(value, (list, tuple)) and bool(value)
+                                        and all(isinstance(v, str) for v in value))
     elif t == 'int|str':
         ok = isinstance(value, str) or (isinstance(value, int) and not isinstance(value, bool)) or (
             isinstance(value, (list, tuple)) and all(isinstance(v, int) and not isinstance(v, bool) for v in value))

@@ -11,6 +11,7 @@ import math
 import numpy as np
 import pytest
 
+from brace_control.can.dictionary import ObjectRef
 from brace_control.can.master import MasterConfig
 from brace_control.can.pdo import LOAD_CELL_INPUT, TORQUE_ACTUAL
 from brace_control.can.units import scaling_from_config
@@ -32,7 +33,7 @@ def test_rotary_scaling_counts_per_radian_and_torque_actual(device):
     assert s.force_to_si(1000) == pytest.approx(rated)           # 1000 per mille = rated torque
     assert rated > cfg['safety']['force_limit'] / cfg['safety']['saturation_fraction']
     mc = MasterConfig.from_device_config(cfg, channel='unused')
-    assert mc.force_object == TORQUE_ACTUAL and mc.limits.unit == 'rad'
+    assert mc.load_cell_object == ObjectRef(TORQUE_ACTUAL) and mc.limits.unit == "rad"
 
 
 @pytest.mark.parametrize('device', ROTARY + LINEAR)
@@ -42,7 +43,7 @@ def test_master_limits_are_the_mechanisms_actuator_limits(device):
     mc = MasterConfig.from_device_config(cfg, channel='unused')
     assert mc.limits.strokes == tuple(zip(lo.tolist(), hi.tolist()))
     if device in LINEAR:
-        assert mc.force_object == LOAD_CELL_INPUT and mc.limits.unit == 'm'
+        assert mc.load_cell_object == ObjectRef(LOAD_CELL_INPUT) and mc.limits.unit == "m"
 
 
 def test_lumbar_limits_unchanged():

@@ -53,6 +53,11 @@ def misspell(word: str) -> str:
 
 
 def write(tmp_path: Path, params: dict[str, Any], name: str = 'device.yaml') -> Path:
+    """The parameters as a device file in ``tmp_path``; the EDS it names stays the package's
+    (files are relative to the YAML's own directory)."""
+    eds = params.get('can', {}).get('eds') if isinstance(params.get('can'), dict) else None
+    if isinstance(eds, str) and eds and not Path(eds).is_absolute():
+        params = {**params, 'can': {**params['can'], 'eds': str(REPO / 'config' / eds)}}
     path = tmp_path / name
     path.write_text(yaml.safe_dump({'/**': {'ros__parameters': params}}, sort_keys=False))
     return path

@@ -1,48 +1,147 @@
-"""Boot and configuration of the drives: bus, NMT, SDO set-up, PDO mapping, homing.
+"""Boot and configuration of the drives: the plan, bus, NMT, SDO set-up, PDO mapping, homing.
 
 Part of :class:`~.master.BraceMaster` (a mixin: the state it uses is created in
-``BraceMaster.__init__``). Boot (:meth:`BootMixin.boot`): wait for each drive's boot-up or
-heartbeat (``can.boot_timeout``) -> NMT pre-operational -> SDO configuration (1017h,
-1016h, 6007h, 605Ah, 6065h, 607Dh, 6060h, 60C2h, 1006h, 607Fh, 6083h-6085h, 6098h, 607Ch)
--> PDO mapping by SDO (RPDO1 6040h + 607Ah, RPDO2 60B1h, TPDO1 6041h + 6064h + 2401h or
-6077h) -> NMT operational.
+``BraceMaster.__init__``). Before anything is sent, every drive's boot is planned against its
+own object dictionary (:meth:`BootMixin.plan`, :mod:`.plan`): a drive that lacks what the
+brace needs is refused with one message. Boot (:meth:`BootMixin.boot`): wait for each
+drive's boot-up or heartbeat; a drive still silent gets an NMT reset-communication, then an
+SDO probe, before it is declared missing (``can.boot_timeout``) -> NMT pre-operational -> the
+planned SDO configuration and PDO mapping (``can.sdo_timeout``, ``can.sdo_retries``) -> NMT
+operational. A CiA 401 load-cell module (``can.load_cell_node``) boots alongside.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
-import math
 import struct
 import threading
 import time
-from typing import Any
+from collections.abc import Sequence
 
 import can
 import canopen
 
 from .cia402 import NmtState, OpMode, State402, Statusword
+from .dictionary import Dictionary, DictionaryReadError, ObjectRef
 from .errors import DriverInitializationError, DriverOperationError
-from .pdo import SdoWrite, pdo_mapping_writes
+from .pdo import SdoWrite
+from .plan import BootPlan, BootSettings, DictionaryError, ModulePlan, plan_drive, plan_module
 from .receive import BusListener
-from .state import MasterState, _Drive, interpolation_period
+from .state import MasterState, _Drive, _Module, _Node, interpolation_period
 from .supervision import FaultKind
+from .units import LoadInput
 
-__all__ = ['BootMixin']
+__all__ = ['BootMixin', 'LISTEN_S']
 
 log = logging.getLogger('brace_control.can.master')
 
+#: s the boot listens for boot-ups and heartbeats before resetting the silent drives'
+#: communication (a drive powered before the master listened, with no heartbeat yet)
+LISTEN_S = 0.25
+#: s an SDO probe (a read of 1000h) of a drive that sent no boot-up may take
+PROBE_TIMEOUT_S = 0.1
+
 
 class BootMixin:
-    """Opening the bus, booting and configuring the drives, homing (see the module docstring)."""
+    """Planning, opening the bus, booting and configuring the drives, homing (module docstring)."""
 
+    # ------------------------------------------------------------------ the plan
+    def plan(self) -> list[BootPlan]:
+        """Plan every drive's boot against its dictionary (no bus needed); the load-cell
+        module's plan goes to :attr:`module_plan`. Notes and warnings are logged once.
+
+        :raises DictionaryError: what every drive lacks, drives with the same dictionary and
+            the same gaps named together; nothing has been sent.
+        """
+        cfg = self.config
+        plans: list[BootPlan] = []
+        failures: dict[str, list[str]] = {}
+        for i, (name, node_id) in enumerate(zip(cfg.names, cfg.node_ids)):
+            try:
+                d = Dictionary(cfg.eds[i], node_id)
+                plans.append(plan_drive(d, self._boot_settings(i)))
+            except DictionaryReadError as exc:
+                failures.setdefault(f'can.eds: {exc}', []).append(f'{name} (node {node_id})')
+            except DictionaryError as exc:
+                # the same gaps in the same file: one entry naming every drive
+                text = str(exc).split(' cannot drive the brace: ', 1)[-1]
+                failures.setdefault(f'{d.product} cannot drive the brace: {text}', []).append(
+                    f'{name} (node {node_id})')
+        self.module_plan = None
+        module = cfg.load_cell_module
+        if module is not None:
+            try:
+                self.module_plan = plan_module(
+                    Dictionary(module.eds, module.node_id), node_id=module.node_id,
+                    objects=module.objects, tpdo=module.tpdo, master_node_id=cfg.master_node_id,
+                    master_heartbeat_ms=cfg.master_heartbeat_ms, drive_heartbeat_ms=cfg.drive_heartbeat_ms)
+            except (DictionaryError, DictionaryReadError) as exc:
+                failures.setdefault(f'can.load_cell_node: {exc}', []).append(f'node {module.node_id}')
+        if not failures:
+            clash = self._cob_clashes(plans)
+            if clash:
+                failures[clash] = []
+        if failures:
+            raise DictionaryError('configure refused (nothing was sent to the bus): ' + ' | '.join(
+                (', '.join(who) + ': ' if who else '') + why for why, who in failures.items()))
+        self.boot_report = _report(plans, self.module_plan)
+        for line in self.boot_report:
+            (log.warning if line.startswith('warning') else log.info)('boot plan: %s', line)
+        return plans
+
+    def _cob_clashes(self, plans: Sequence[BootPlan]) -> str:
+        """Two PDOs (or a PDO and a drive's heartbeat, EMCY or SDO) on one COB-ID."""
+        used: dict[int, str] = {0x80: 'SYNC', 0x700 + self.config.master_node_id: "master's heartbeat"}
+        nodes = list(self.config.node_ids) + ([self.module_plan.node_id] if self.module_plan else [])
+        for n in nodes:
+            for base, what in ((0x80, 'EMCY'), (0x580, 'SDO'), (0x600, 'SDO'), (0x700, 'heartbeat')):
+                used[base + n] = f'node {n} {what}'
+        layouts = [(p.name, lay) for p in plans for lay in (*p.rpdos, p.feedback)]
+        if self.module_plan is not None:
+            layouts.append((f'node {self.module_plan.node_id}', self.module_plan.tpdo))
+        for who, lay in layouts:
+            if lay.cob_id in used:
+                return (f'{who} {lay.name} COB-ID {lay.cob_id:03X}h is also {used[lay.cob_id]}; '
+                        'set a free can.{rpdo,tpdo}.<n>.cob_id')
+            used[lay.cob_id] = f'{who} {lay.name}'
+        return ''
+
+    def _boot_settings(self, index: int) -> BootSettings:
+        """What the master wants of drive ``index``, in its units (docs/can.md)."""
+        cfg, sc = self.config, self.scaling
+        lo, hi = self.limits.stroke_of(index)
+        home = cfg.home_lengths[index] if cfg.home_lengths is not None else None
+        return BootSettings(
+            node_id=cfg.node_ids[index], name=cfg.names[index], master_node_id=cfg.master_node_id,
+            master_heartbeat_ms=cfg.master_heartbeat_ms, drive_heartbeat_ms=cfg.drive_heartbeat_ms,
+            period_us=round(cfg.period * 1e6), interpolation=interpolation_period(cfg.period),
+            homing_method=cfg.homing_method,
+            following_error_counts=max(1, round(cfg.following_error_window * sc.counts_per_unit)),
+            velocity_counts=sc.velocity_to_counts(self.limits.v_max),
+            acceleration_counts=sc.acceleration_to_counts(self.limits.a_max),
+            soft_limits_counts=((sc.to_counts(lo), sc.to_counts(hi))
+                                if lo > float('-inf') and hi < float('inf') else None),
+            home_offset_counts=None if home is None else sc.to_counts(home),
+            load_cell=cfg.load_cell_object, rpdo=cfg.rpdo, tpdo=cfg.tpdo)
+
+    def sdo_writes(self, index: int) -> list[SdoWrite]:
+        """The configuration of drive ``index`` (actuator order) as planned, in write order."""
+        plan = self.plans[index] if self.plans else self.plan()[index]
+        return plan.writes + plan.mapping
+
+    # ------------------------------------------------------------------ bus
     def open(self) -> None:
-        """Open the bus and the canopen Network, start the SYNC thread (heartbeat only).
+        """Plan the boot, open the bus and the canopen Network, start the SYNC thread
+        (heartbeat only).
 
+        :raises DictionaryError: a drive's dictionary lacks what the brace needs (nothing opened).
         :raises DriverInitializationError: the interface / channel cannot be opened.
         """
         with self._api_lock:
             if self.state is not MasterState.CLOSED:
                 return
             cfg = self.config
+            self.plans = self.plan()
             log_path = cfg.frame_log
             if self._bus is None:
                 try:
@@ -65,15 +164,27 @@ class BootMixin:
                 from .framelog import open_frame_log
                 self._frame_log = open_frame_log(log_path)
                 net.listeners.append(self._frame_log)
-            for i, (name, node_id) in enumerate(zip(cfg.names, cfg.node_ids)):
-                od: Any = str(cfg.eds) if cfg.eds is not None else canopen.ObjectDictionary()
-                node = canopen.RemoteNode(node_id, od)
-                net.add_node(node)
-                d = _Drive(i, name, node_id, node, 0x200 + node_id, 0x300 + node_id)
+            self._module = None
+            if self.module_plan is not None:
+                mp = self.module_plan
+                m = _Module('load-cell module', mp.node_id, self._remote(net, mp.node_id, mp.dictionary),
+                            heartbeat=mp.heartbeat, tpdo=mp.tpdo,
+                            zeros=tuple(LoadInput.of(e.code).zero for e in mp.tpdo.entries))
+                self._module = m
+                net.subscribe(mp.tpdo.cob_id, self._module_callback(m))
+                self._subscribe_node(net, m)
+            self._drives = []
+            for i, (name, plan) in enumerate(zip(cfg.names, self.plans)):
+                node = self._remote(net, plan.node_id, plan.dictionary)
+                zero = 0
+                if plan.load_type is not None and cfg.load_cell_object is not None:
+                    zero = LoadInput.of(plan.feedback.entries[plan.feedback.position_of('load')].code).zero
+                d = _Drive(name, plan.node_id, node, heartbeat=plan.heartbeat, index=i,
+                           rpdos=plan.rpdos, rpdo_sent=[None] * len(plan.rpdos), load_zero=zero)
                 self._drives.append(d)
-                net.subscribe(0x180 + node_id, self._tpdo_callback(d))
-                net.subscribe(0x700 + node_id, self._heartbeat_callback(d))
-                net.subscribe(0x80 + node_id, self._emcy_callback(d))
+                net.subscribe(plan.feedback.cob_id, self._tpdo_callback(d, plan.feedback))
+                self._subscribe_node(net, d)
+            self._saturation_span()
             net.connect()
             self.network = net
             self._stop.clear()
@@ -81,11 +192,43 @@ class BootMixin:
             self._thread.start()
             self._set_state(MasterState.OPEN)
 
-    def boot(self, *, timeout: float | None = None) -> None:
-        """Boot every drive to NMT OPERATIONAL with the configuration of docs/can.md.
+    def _remote(self, net: canopen.Network, node_id: int, od_of: Dictionary) -> canopen.RemoteNode:
+        node = canopen.RemoteNode(node_id, od_of.od)
+        node.sdo.RESPONSE_TIMEOUT = self.config.sdo_timeout
+        node.sdo.MAX_RETRIES = self.config.sdo_retries + 1      # canopen counts the first try
+        net.add_node(node)
+        return node
 
+    def _subscribe_node(self, net: canopen.Network, n: _Node) -> None:
+        net.subscribe(0x700 + n.node_id, self._heartbeat_callback(n))
+        net.subscribe(0x80 + n.node_id, self._emcy_callback(n))
+
+    def _saturation_span(self) -> None:
+        """The saturation threshold within what every load-cell input can show."""
+        spans = []
+        for plan in self.plans:
+            pos = plan.feedback.position_of('load')
+            if pos is not None:
+                spans.append(LoadInput.of(plan.feedback.entries[pos].code).span)
+        if self.module_plan is not None:
+            spans += [LoadInput.of(e.code).span for e in self.module_plan.tpdo.entries]
+        if spans:
+            sat = self.scaling.saturation_counts(self.limits.saturation_fraction, min(spans))
+            self.limits = dataclasses.replace(self.limits, saturation_counts=sat)
+
+    @property
+    def _nodes(self) -> list[_Node]:
+        """Every node the master supervises: the drives, and the load-cell module."""
+        return [*self._drives, *([self._module] if self._module is not None else [])]
+
+    # ------------------------------------------------------------------ boot
+    def boot(self, *, timeout: float | None = None) -> None:
+        """Boot every drive to NMT OPERATIONAL with the planned configuration (docs/can.md).
+
+        :raises DictionaryError: a drive's dictionary lacks what the brace needs (nothing sent).
         :raises DriverInitializationError: a drive did not boot within ``can.boot_timeout``
-            (also latched as a BOOT_TIMEOUT fault) or rejected an SDO write.
+            (also latched as a BOOT_TIMEOUT fault) or rejected an SDO write (the object,
+            value, abort code and drive named).
         """
         with self._api_lock:
             if self._supervising:
@@ -94,39 +237,20 @@ class BootMixin:
                 self.open()
             self._set_state(MasterState.BOOTING)
             limit = self.config.boot_timeout if timeout is None else timeout
-            deadline = time.monotonic() + limit
-            for d in self._drives:
-                d.booted.wait(max(0.0, deadline - 0.5 * limit - time.monotonic()))
-            for d in self._drives:
-                if not d.booted.is_set():
-                    # booted before we listened, with no heartbeat (1017h = 0): NMT reset
-                    # communication makes it send its boot-up message again
-                    d.node.nmt.send_command(0x82)
-            for d in self._drives:
-                d.booted.wait(max(0.0, deadline - time.monotonic()))
-            missing = [d for d in self._drives if not d.booted.is_set()]
-            for d in missing:
-                self.supervisor.report(
-                    FaultKind.BOOT_TIMEOUT,
-                    f'no boot-up or heartbeat from node {d.node_id} within '
-                    f'{self.config.boot_timeout:g} s', drive=d.name,
-                    still_present=self._heartbeat_missing(d))
-            if missing:
-                self._set_state(MasterState.FAULT)
-                raise DriverInitializationError(
-                    'drive(s) did not boot: ' + ', '.join(
-                        f'{d.name} (node {d.node_id})' for d in missing)
-                    + f' within can.boot_timeout = {self.config.boot_timeout:g} s; '
-                    'check power, wiring, node ids and bit rate')
+            self._await_boot_up(limit)
             for d in self._drives:
                 self._configure(d)
+            if self._module is not None:
+                self._configure_module(self._module)
             self._pdo_running = True
-            for d in self._drives:
-                d.node.nmt.send_command(0x01)            # start remote node
+            for n in self._nodes:
+                n.node.nmt.send_command(0x01)            # start remote node
             self._wait(lambda: all(d.nmt == NmtState.OPERATIONAL and d.sample is not None
-                                   for d in self._drives),
+                                   for d in self._drives)
+                       and (self._module is None or (self._module.samples > 0
+                                                     and self._module.nmt == NmtState.OPERATIONAL)),
                        timeout=max(0.5, 4 * self.config.drive_heartbeat_ms * 1e-3),
-                       what='drives OPERATIONAL with TPDO1')
+                       what='drives OPERATIONAL with their feedback TPDO')
             for d in self._drives:
                 d.target = self._actual_counts(d)
                 d.checked = None
@@ -135,16 +259,75 @@ class BootMixin:
             self._set_state(MasterState.FAULT if self.supervisor.latched else MasterState.DISABLED)
             log.info('CAN master: %d drives OPERATIONAL on %s', len(self._drives), self.config.channel)
 
+    def _await_boot_up(self, limit: float) -> None:
+        """Each node's boot-up or heartbeat; for the silent ones an NMT reset-communication (a
+        drive that booted before we listened sends its boot-up again), then an SDO probe (a
+        drive that sends none), before it is declared missing."""
+        deadline = time.monotonic() + limit
+        nodes = self._nodes
+        listen_end = time.monotonic() + min(LISTEN_S, 0.5 * limit)
+        for n in nodes:
+            n.booted.wait(max(0.0, listen_end - time.monotonic()))
+        silent = [n for n in nodes if not n.booted.is_set()]
+        for n in silent:
+            log.info('node %d: no boot-up or heartbeat heard; NMT reset communication', n.node_id)
+            n.node.nmt.send_command(0x82)                # reset communication: boot-up again
+        reset_end = time.monotonic() + 0.5 * max(0.0, deadline - time.monotonic())
+        for n in silent:
+            n.booted.wait(max(0.0, reset_end - time.monotonic()))
+        for n in [n for n in nodes if not n.booted.is_set()]:
+            try:                                          # a drive that sends no boot-up at all
+                sdo = n.node.sdo
+                saved = sdo.RESPONSE_TIMEOUT, sdo.MAX_RETRIES
+                sdo.RESPONSE_TIMEOUT, sdo.MAX_RETRIES = max(PROBE_TIMEOUT_S, self.config.sdo_timeout), 1
+                try:
+                    sdo.upload(0x1000, 0)
+                finally:
+                    sdo.RESPONSE_TIMEOUT, sdo.MAX_RETRIES = saved
+            except (canopen.SdoAbortedError, canopen.SdoCommunicationError):
+                continue
+            log.warning('node %d sent no boot-up message (not even after an NMT reset); it '
+                        'answers SDO: taken as present', n.node_id)
+            n.nmt = NmtState.PRE_OPERATIONAL
+            n.booted.set()
+        for n in nodes:
+            n.booted.wait(max(0.0, deadline - time.monotonic()))
+        missing = [n for n in nodes if not n.booted.is_set()]
+        for n in missing:
+            self.supervisor.report(
+                FaultKind.BOOT_TIMEOUT,
+                f'no boot-up, heartbeat or SDO answer from node {n.node_id} within '
+                f'{limit:g} s', drive=n.name,
+                still_present=self._heartbeat_missing(n))
+        if missing:
+            self._set_state(MasterState.FAULT)
+            raise DriverInitializationError(
+                'drive(s) did not boot: ' + ', '.join(f'{n.name} (node {n.node_id})' for n in missing)
+                + f' within can.boot_timeout = {limit:g} s (no boot-up message, no heartbeat, '
+                'no answer to an NMT reset nor to an SDO read of 1000h); check power, wiring, '
+                'node ids and bit rate')
+
+    def _download(self, n: _Node, w: SdoWrite, source: str) -> None:
+        try:
+            n.node.sdo.download(w.index, w.subindex, w.data())
+        except canopen.SdoAbortedError as exc:
+            raise DriverInitializationError(
+                f'{n.name} (node {n.node_id}) rejected {w.index:04X}h:{w.subindex} = {_shown(w.value)} '
+                f'({w.what}): abort {exc} (dictionary {source})') from exc
+        except canopen.SdoCommunicationError as exc:
+            cfg = self.config
+            raise DriverInitializationError(
+                f'{n.name} (node {n.node_id}) did not answer the SDO write of {w.index:04X}h:'
+                f'{w.subindex} = {_shown(w.value)} ({w.what}) within can.sdo_timeout = {cfg.sdo_timeout:g} s '
+                f'({cfg.sdo_retries + 1} attempt(s)): {exc}; a slow drive needs a larger '
+                'can.sdo_timeout') from exc
+
     def _configure(self, d: _Drive) -> None:
-        """NMT pre-operational, then the SDO writes of docs/can.md, then the PDO mapping."""
+        """NMT pre-operational, then the planned SDO writes, then the planned PDO mapping."""
+        plan = self.plans[d.index]
         d.node.nmt.send_command(0x80)                    # enter pre-operational
-        for w in self.sdo_writes(d.index):
-            try:
-                d.node.sdo.download(w.index, w.subindex, w.data())
-            except (canopen.SdoAbortedError, canopen.SdoCommunicationError) as exc:
-                raise DriverInitializationError(
-                    f'{d.name} (node {d.node_id}) rejected {w.index:04X}h:{w.subindex} = '
-                    f'{w.value} ({w.what}): {exc}') from exc
+        for w in plan.writes + plan.mapping:
+            self._download(d, w, plan.dictionary.path.name)
         try:
             raw = d.node.sdo.upload(0x1000, 0)
             device_type = struct.unpack('<I', raw[:4])[0]
@@ -154,46 +337,22 @@ class BootMixin:
         except (canopen.SdoAbortedError, canopen.SdoCommunicationError, struct.error):
             pass
 
-    def sdo_writes(self, index: int) -> list[SdoWrite]:
-        """The configuration of drive ``index`` (actuator order), in write order."""
-        cfg, sc = self.config, self.scaling
-        node_id = cfg.node_ids[index]
-        period_us = round(cfg.period * 1e6)
-        ip_value, ip_index = interpolation_period(cfg.period)
-        lo, hi = self.limits.stroke_of(index)
-        writes = [
-            SdoWrite(0x1017, 0, 'H', cfg.drive_heartbeat_ms, 'producer heartbeat time (ms)'),
-            SdoWrite(0x1016, 1, 'I', (cfg.master_node_id << 16) | (2 * cfg.master_heartbeat_ms),
-                     "consumer heartbeat time of the master's heartbeat"),
-            SdoWrite(0x6007, 0, 'h', 3, 'abort connection option: quick stop'),
-            SdoWrite(0x605A, 0, 'h', 6, 'quick stop option: ramp, stay in QUICK STOP ACTIVE'),
-            SdoWrite(0x6065, 0, 'I', max(1, round(cfg.following_error_window * sc.counts_per_unit)),
-                     'following error window (counts)'),
-            SdoWrite(0x6060, 0, 'b', int(OpMode.CYCLIC_SYNC_POSITION), 'mode: cyclic synchronous position'),
-            SdoWrite(0x60C2, 1, 'B', ip_value, 'interpolation time period value'),
-            SdoWrite(0x60C2, 2, 'b', ip_index, 'interpolation time index (10^index s)'),
-            SdoWrite(0x1006, 0, 'I', period_us, 'communication cycle period (us)'),
-            SdoWrite(0x607F, 0, 'I', sc.velocity_to_counts(self.limits.v_max), 'max profile velocity'),
-            SdoWrite(0x6083, 0, 'I', sc.acceleration_to_counts(self.limits.a_max), 'profile acceleration'),
-            SdoWrite(0x6084, 0, 'I', sc.acceleration_to_counts(self.limits.a_max), 'profile deceleration'),
-            SdoWrite(0x6085, 0, 'I', sc.acceleration_to_counts(self.limits.a_max), 'quick stop deceleration'),
-            SdoWrite(0x6098, 0, 'b', cfg.homing_method, 'homing method'),
-        ]
-        if math.isfinite(lo) and math.isfinite(hi):
-            writes += [SdoWrite(0x607D, 1, 'i', sc.to_counts(lo), 'software position limit min'),
-                       SdoWrite(0x607D, 2, 'i', sc.to_counts(hi), 'software position limit max')]
-        if cfg.home_lengths is not None:
-            writes.append(SdoWrite(0x607C, 0, 'i', sc.to_counts(cfg.home_lengths[index]),
-                                   'home offset = IK(home_pose) length'))
-        return writes + pdo_mapping_writes(node_id, force_object=cfg.force_object)
+    def _configure_module(self, m: _Module) -> None:
+        plan: ModulePlan = self.module_plan
+        m.node.nmt.send_command(0x80)
+        for w in plan.writes + plan.mapping:
+            self._download(m, w, plan.dictionary.path.name)
 
+    # ------------------------------------------------------------------ homing
     def home(self, *, timeout: float | None = None) -> None:
         """Home every drive with ``can.homing_method`` (6098h) and home offset 607Ch.
 
         Method 35 (37): the current position becomes the home offset, i.e. the actuator
-        length at the home pose: park the brace there first. Only with the drives disabled:
-        re-zeroing encoders under a held or moving command would leave a silent offset
-        between where the drives are and where the command says they are.
+        length at the home pose: park the brace there first. A drive without a writable 607Ch
+        homes to its own offset and the master keeps the difference (positions on the bus
+        are then the drive's counts plus that offset; 607Dh follows after homing). Only
+        with the drives disabled: re-zeroing encoders under a held or moving command would
+        leave a silent offset between where the drives are and where the command says they are.
 
         :raises DriverOperationError: the drives are not disabled (the message names the
             state), no home offset (no mechanism model), a homing error bit (6041h bit 13),
@@ -210,11 +369,15 @@ class BootMixin:
                                            'is unavailable; pass home_lengths to MasterConfig')
             self._tracking = False
             self._set_state(MasterState.HOMING)
+            method = self.config.homing_method
             try:
-                self._sdo_all(0x6098, 0, 'b', self.config.homing_method)
-                for d in self._drives:
-                    self._sdo(d, 0x607C, 0, 'i', self.scaling.to_counts(self.config.home_lengths[d.index]))
-                self._sdo_all(0x6060, 0, 'b', int(OpMode.HOMING))
+                homes = [self.scaling.to_counts(self.config.home_lengths[d.index]) for d in self._drives]
+                for d, home in zip(self._drives, homes):
+                    self._sdo(d, 0x6098, 0, method)
+                    if self.plans[d.index].home_offset_on_drive:
+                        self._sdo(d, 0x607C, 0, home)
+                self._mode = int(OpMode.HOMING)
+                self._sdo_all(0x6060, 0, self._mode)
                 self._desired = State402.OPERATION_ENABLED
                 self._wait(lambda: self._all_in(State402.OPERATION_ENABLED), timeout=timeout,
                            what='OPERATION ENABLED for homing')
@@ -225,8 +388,7 @@ class BootMixin:
                             sw = d.sample.statusword if d.sample else 0
                             if sw & Statusword.OP_SPECIFIC_13:
                                 raise DriverOperationError(
-                                    f'{d.name}: homing error (statusword {sw:04X}h), method '
-                                    f'{self.config.homing_method}')
+                                    f'{d.name}: homing error (statusword {sw:04X}h), method {method}')
                             if not (sw & Statusword.OP_SPECIFIC_12 and sw & Statusword.TARGET_REACHED):
                                 return False
                         return True
@@ -234,13 +396,17 @@ class BootMixin:
                 finally:
                     self._homing_start = False
                 self._wait_syncs(2)
-                for d in self._drives:
+                for d, home in zip(self._drives, homes):
+                    if not self.plans[d.index].home_offset_on_drive:
+                        self._keep_home_offset(d, home)
                     d.checked = None
                     d.history.clear()
                     d.target = self._actual_counts(d)
-                self._sdo_all(0x6060, 0, 'b', int(OpMode.CYCLIC_SYNC_POSITION))
+                self._mode = int(OpMode.CYCLIC_SYNC_POSITION)
+                self._sdo_all(0x6060, 0, self._mode)
                 self.homed = True
             except BaseException:
+                self._mode = int(OpMode.CYCLIC_SYNC_POSITION)
                 self._desired = State402.SWITCH_ON_DISABLED
                 self._set_state(MasterState.FAULT if self.supervisor.latched else MasterState.DISABLED)
                 raise
@@ -248,15 +414,67 @@ class BootMixin:
             self._wait(lambda: self._all_in(State402.SWITCH_ON_DISABLED), timeout=timeout,
                        what='SWITCH ON DISABLED after homing')
             self._set_state(MasterState.DISABLED)
-            log.info('homed (method %d): %s', self.config.homing_method,
+            log.info('homed (method %d): %s', method,
                      ', '.join(f'{n} {p:.4f} {self.limits.unit}' for n, p in zip(self.names, self.feedback().position)))
 
-    def _sdo(self, d: _Drive, index: int, sub: int, fmt: str, value: int) -> None:
+    def _keep_home_offset(self, d: _Drive, home_counts: int) -> None:
+        """The drive homed to its own offset (no writable 607Ch): from now on the master adds
+        ``home - reading`` to its positions (and takes it from its targets); the drive's
+        software limits 607Dh are written in its own counts."""
+        raw = self.scaling.to_counts(d.sample.position) - d.count_offset
+        d.count_offset = home_counts - raw
+        d.recent.clear()
+        plan = self.plans[d.index]
+        lo, hi = self.limits.stroke_of(d.index)
+        if plan.dictionary.writable(ObjectRef(0x607D, 1)) and plan.dictionary.writable(ObjectRef(0x607D, 2)) \
+                and lo > float('-inf') and hi < float('inf'):
+            try:
+                self._sdo(d, 0x607D, 1, self.scaling.to_counts(lo) - d.count_offset)
+                self._sdo(d, 0x607D, 2, self.scaling.to_counts(hi) - d.count_offset)
+            except DriverOperationError as exc:
+                log.warning('%s: software position limits not written after homing: %s', d.name, exc)
+        log.info('%s: no writable 607Ch; the master keeps the home offset (%d counts)', d.name,
+                 d.count_offset)
+
+    def _sdo(self, d: _Drive, index: int, sub: int, value: int) -> None:
+        """Write ``value`` in the object's own type (from the drive's dictionary)."""
+        dic = self.plans[d.index].dictionary
+        ref = ObjectRef(index, sub)
         try:
-            d.node.sdo.download(index, sub, struct.pack('<' + fmt, value))
+            data = dic.encode(ref, value)
+        except ValueError as exc:
+            raise DriverOperationError(f'{d.name}: {exc}') from exc
+        try:
+            d.node.sdo.download(index, sub, data)
         except (canopen.SdoAbortedError, canopen.SdoCommunicationError) as exc:
             raise DriverOperationError(f'{d.name}: SDO {index:04X}h:{sub} = {value} failed: {exc}') from exc
 
-    def _sdo_all(self, index: int, sub: int, fmt: str, value: int) -> None:
+    def _sdo_all(self, index: int, sub: int, value: int) -> None:
         for d in self._drives:
-            self._sdo(d, index, sub, fmt, value)
+            self._sdo(d, index, sub, value)
+
+
+def _shown(value: int | float) -> str:
+    """A value as a message shows it: hexadecimal when it is an id or a mapping entry."""
+    return f'{value:08X}h' if isinstance(value, int) and value > 0xFFFF else f'{value}'
+
+
+def _report(plans: Sequence[BootPlan], module: ModulePlan | None) -> list[str]:
+    """The plans' notes and warnings, each once, with the drives it applies to."""
+    lines: dict[str, list[str]] = {}
+    for p in plans:
+        for w in p.warnings:
+            lines.setdefault(f'warning: {w}', []).append(p.name)
+        for note in p.notes:
+            lines.setdefault(note, []).append(p.name)
+    if module is not None:
+        for w in module.warnings:
+            lines.setdefault(f'warning: {w}', []).append(f'load-cell module (node {module.node_id})')
+        for note in module.notes:
+            lines.setdefault(note, []).append(f'load-cell module (node {module.node_id})')
+    out = []
+    for text, who in lines.items():
+        head, _, rest = text.partition('warning: ')
+        out.append(f'warning: {", ".join(who)}: {rest}' if text.startswith('warning: ')
+                   else f'{", ".join(who)}: {text}')
+    return out

@@ -10,9 +10,10 @@ Part of :class:`~.master.BraceMaster` (a mixin; the SYNC thread is the only call
    period, so its reference equals the plan at the SYNC instants), from the running
    trajectory or the setpoint stream, one time base for all axes; after a brakeable fault
    it first brakes the motion along its path;
-4. per drive RPDO1 (controlword 6040h + target 607Ah) and RPDO2 (velocity offset 60B1h,
-   the feed-forward) when their content changed (every SYNC while moving; at rest every
-   ``RPDO_REFRESH`` SYNCs: a synchronous RPDO not received keeps its value), then SYNC.
+4. per drive the RPDOs as planned against its dictionary (:mod:`.plan`; by default RPDO1
+   controlword 6040h + target 607Ah and RPDO2 velocity offset 60B1h, the feed-forward)
+   when their content changed (every SYNC while moving; at rest every ``RPDO_REFRESH``
+   SYNCs: a synchronous RPDO not received keeps its value), then SYNC.
 
 The setpoint stream (teleoperation): a new setpoint is step-checked (SAFETY 7) over the
 smaller of the time between its stamp and the previous one and the time between their
@@ -35,7 +36,7 @@ from .cia402 import Controlword, State402, controlword_towards, decode_state
 from .frame import Frame
 from .execution import ExecutionState
 from .monitors import BRAKEABLE
-from .pdo import RPDO1, RPDO2, frame_bits
+from .pdo import frame_bits
 from .state import Relief, TakeUp, _Drive, _Setpoint
 from .supervision import FaultKind, check_step
 from .timing import run_periodic
@@ -153,14 +154,13 @@ class CycleMixin:
             # RPDO goes out when its content changes (every SYNC while moving) and every
             # RPDO_REFRESH SYNCs anyway; at rest only SYNC and the TPDOs are on the bus
             refresh = k % RPDO_REFRESH == 0
-            if (cw, d.target) != d.rpdo_sent or refresh:
-                self._send(Frame(arbitration_id=d.rpdo_id, data=RPDO1.pack(cw, d.target),
-                                 is_extended_id=False))
-                d.rpdo_sent = (cw, d.target)
-            if d.velocity_offset != d.offset_sent or refresh:
-                self._send(Frame(arbitration_id=d.rpdo2_id, data=RPDO2.pack(d.velocity_offset),
-                                 is_extended_id=False))
-                d.offset_sent = d.velocity_offset
+            values = {'controlword': cw, 'target': d.target - d.count_offset,
+                      'velocity_offset': d.velocity_offset, 'mode': self._mode}
+            for j, lay in enumerate(d.rpdos):
+                data = lay.codec.pack(*[values[r] for r in lay.roles])
+                if data != d.rpdo_sent[j] or refresh:
+                    self._send(Frame(arbitration_id=lay.cob_id, data=data, is_extended_id=False))
+                    d.rpdo_sent[j] = data
             d.sent.append((self._sync_index + 1, d.target))     # for the SYNC sent next
         # the TPDOs answering this SYNC may arrive before send() returns: stamp first
         self._sync_time = time.perf_counter()

@@ -55,7 +55,7 @@ import canopen
 import numpy as np
 
 from .boot import BootMixin
-from .cia402 import NmtState, State402, describe_statusword, emcy_description
+from .cia402 import NmtState, OpMode, State402, describe_statusword, emcy_description
 from .cycle import CycleMixin
 from .errors import (DriverInitializationError, DriverOperationError, DriverTimeoutError,
                      FaultLatchedError)
@@ -63,9 +63,10 @@ from .execution import ActuatorTrajectory, ExecutionEvent, PathExecutor
 from .frame import Frame
 from .monitors import MonitorMixin
 from .receive import ReceiveMixin
-from .monitors import RELIEVABLE
+from .monitors import NO_FEEDFORWARD_LAG_S, RELIEVABLE
+from .plan import BootPlan, ModulePlan
 from .state import (BusStatus, DriveStatus, Feedback, MasterConfig, MasterState, MasterStatus,
-                    Relief, TakeUp, _Drive, _Setpoint)
+                    Relief, TakeUp, _Drive, _Module, _Setpoint)
 from .supervision import Fault, FaultKind, Supervisor
 from .timing import PeriodStats
 
@@ -126,6 +127,16 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
         self._bus: can.BusABC | None = bus
         self.network: canopen.Network | None = None
         self._drives: list[_Drive] = []
+        #: each drive's boot as planned against its dictionary (:meth:`plan`, at :meth:`open`)
+        self.plans: list[BootPlan] = []
+        self.module_plan: ModulePlan | None = None
+        self._module: _Module | None = None
+        #: what the plans skipped and why, one line each (logged at configure)
+        self.boot_report: list[str] = []
+        #: 6060h the RPDOs carry where a drive maps it (homing: 6, else 8)
+        self._mode = int(OpMode.CYCLIC_SYNC_POSITION)
+        #: SYNCs of position-loop lag allowed a drive without velocity feed-forward
+        self._lag_syncs = math.ceil(NO_FEEDFORWARD_LAG_S / config.period)
         self._api_lock = threading.RLock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -575,20 +586,23 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
                 self.executor.events.clear()
             self._recover_time = time.monotonic()
             restarted = []
-            for d in self._drives:
+            for d in self._nodes:
                 if d.nmt is not None and d.nmt != NmtState.OPERATIONAL and \
                         not self._heartbeat_missing(d)():
                     try:
-                        self._configure(d)
+                        if d is self._module:
+                            self._configure_module(d)
+                        else:
+                            self._configure(d)
+                            d.checked = None
+                            d.history.clear()
                         d.node.nmt.send_command(0x01)
                         restarted.append(d)
-                        d.checked = None
-                        d.history.clear()
                     except DriverInitializationError as exc:
                         log.error('recover: %s', exc)
             if restarted:
                 start = self._tpdo_total
-                self._wait(lambda: all(d.nmt == NmtState.OPERATIONAL and d.rx_total > start
+                self._wait(lambda: all(d.nmt == NmtState.OPERATIONAL and (d.rx_total > start or d is self._module)
                                        for d in restarted),
                            timeout=max(0.5, 4 * self.config.drive_heartbeat_ms * 1e-3),
                            what='restarted drives OPERATIONAL', raise_=False)
@@ -661,7 +675,7 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
                 self._events.extend(self.executor.events)
                 self.executor.events.clear()
             if self.network is not None and self._drives:
-                for d in self._drives:
+                for d in self._nodes:
                     try:
                         d.node.nmt.send_command(0x80)     # pre-operational: PDOs off, SDO kept
                     except Exception:  # noqa: BLE001 - bus may be gone already

@@ -15,10 +15,10 @@ import time
 from collections.abc import Callable
 
 from .cia402 import NmtState, State402, decode_state, describe_statusword, emcy_description
-from .state import MasterState, _Drive
+from .state import MasterState, _Drive, _Module, _Node
 from .supervision import Fault, FaultKind, Sample, check_sample
 
-__all__ = ['MonitorMixin', 'BRAKEABLE', 'RELIEVABLE']
+__all__ = ['MonitorMixin', 'BRAKEABLE', 'RELIEVABLE', 'NO_FEEDFORWARD_LAG_S']
 
 log = logging.getLogger('brace_control.can.master')
 
@@ -26,6 +26,10 @@ _SW_FAULT = 1 << 3
 _SW_WARNING = 1 << 7
 _SW_LIMIT = 1 << 11
 
+#: s of position-loop lag allowed a drive without velocity feed-forward (60B1h): a loop of
+#: gain Kp lags v / Kp (10 1/s and up: 0.1 s); its tracking is judged against the targets
+#: of this long ago as well (safety.path_tolerance still applies to the nearest)
+NO_FEEDFORWARD_LAG_S = 0.1
 #: N the force must have risen over the last samples for the soft limit to brake a motion
 SOFT_RISE_N = 0.5
 #: faults after which the drives still follow commands: the motion is braked along its
@@ -55,13 +59,13 @@ class MonitorMixin:
 
     # ------------------------------------------------------------------ "cause still present" predicates
 
-    def _heartbeat_missing(self, d: _Drive) -> Callable[[], bool]:
+    def _heartbeat_missing(self, d: _Node) -> Callable[[], bool]:
         return lambda: self.heartbeat_age(d) > self.limits.heartbeat_timeout
 
-    def _nmt_not_operational(self, d: _Drive) -> Callable[[], bool]:
+    def _nmt_not_operational(self, d: _Node) -> Callable[[], bool]:
         return lambda: d.nmt != NmtState.OPERATIONAL
 
-    def _emcy_present(self, d: _Drive) -> Callable[[], bool]:
+    def _emcy_present(self, d: _Node) -> Callable[[], bool]:
         return lambda: (d.state in (State402.FAULT, State402.FAULT_REACTION_ACTIVE)
                         or d.emcy_nonzero_time > self._recover_time)
 
@@ -107,9 +111,11 @@ class MonitorMixin:
         now = time.monotonic()
         tracking = self._tracking and self.state is MasterState.ENABLED
         in_grace = now < self._grace_until
+        if self._module is not None:
+            self._monitor_module(self._module, in_grace)
         for d in self._drives:
             name = d.name
-            age = self.heartbeat_age(d)
+            age = self.heartbeat_age(d) if d.heartbeat else 0.0
             if age > limits.heartbeat_timeout and not in_grace:
                 self.supervisor.report(
                     FaultKind.HEARTBEAT_LOST,
@@ -177,6 +183,27 @@ class MonitorMixin:
                     still_present=lambda d=d: abs(d.velocity) > self.limits.speed_factor * self.limits.v_max)
             d.checked = s
 
+    def _monitor_module(self, m: '_Module', in_grace: bool) -> None:
+        """The load-cell module: its heartbeat, its NMT state, and its TPDO keeping up with the
+        drives' (its readings are every actuator's force: a silent module is stale feedback)."""
+        limits = self.limits
+        who = f'{m.name} (node {m.node_id})'
+        age = self.heartbeat_age(m) if m.heartbeat else 0.0
+        if age > limits.heartbeat_timeout and not in_grace:
+            self.supervisor.report(
+                FaultKind.HEARTBEAT_LOST, f'no heartbeat from node {m.node_id} for {age * 1e3:.0f} ms '
+                f'(consumer time {limits.heartbeat_timeout * 1e3:.0f} ms)', drive=who,
+                still_present=self._heartbeat_missing(m))
+        elif m.nmt is not None and m.nmt != NmtState.OPERATIONAL:
+            self.supervisor.report(FaultKind.NMT_STATE, f'node {m.node_id} reports NMT state {m.nmt}',
+                                   drive=who, still_present=self._nmt_not_operational(m))
+        behind = self._tpdo_total - m.rx_total
+        if behind >= limits.stale_periods * len(self._drives) and not in_grace:
+            self.supervisor.report(
+                FaultKind.STALE_FEEDBACK, f'no TPDO (load cells) from node {m.node_id} while the drives '
+                f'sent {behind}', drive=who,
+                still_present=lambda: self._tpdo_total - m.rx_total >= limits.stale_periods * len(self._drives))
+
     def _commanded_for(self, d: _Drive, s: Sample) -> int:
         """The target (counts) a sample is judged against: of the targets sent from two SYNCs
         before the one it answers up to now, the one nearest to its position.
@@ -185,14 +212,18 @@ class MonitorMixin:
         k - 1; an answer that arrives late (a loaded host, a simulator in the same process)
         must not be judged against targets sent after it was sampled: with a fast actuator
         one SYNC of the target ramp (v_max x period) can exceed the path tolerance.
-        Without a record (before the first SYNC of tracking) the current target.
+        Without a record (before the first SYNC of tracking) the current target. A drive
+        without the velocity feed-forward (no 60B1h in its RPDOs) lags the plan by its
+        position loop's lag: its sample is judged against the targets of the last
+        :data:`NO_FEEDFORWARD_LAG_S` as well.
         """
         pos = self.scaling.to_counts(s.position)
         best = None
+        window = 2 if self.plans[d.index].feedforward else 2 + self._lag_syncs
         # no copy of the record: the SYNC thread appends to it and is the only caller (via
         # _cycle -> _monitor), so it does not change while this loop reads it
         for index, target in reversed(d.sent):
-            if index < s.sync_index - 2:
+            if index < s.sync_index - window:
                 break
             if best is None or abs(target - pos) < abs(best - pos):
                 best = target

@@ -1,4 +1,7 @@
-"""PDO layouts of docs/can.md and the SDO writes that configure a drive at boot.
+"""The default PDO layouts of docs/can.md, the SDO write, and frame sizes on the wire.
+
+The mapping a drive gets is planned against its own dictionary (:mod:`.plan`, from the
+YAML's ``can.rpdo`` / ``can.tpdo``); these are the defaults:
 
 RPDO1 (0x200 + id, 6 bytes): 6040h controlword U16 + 607Ah target position I32.
 RPDO2 (0x300 + id, 4 bytes): 60B1h velocity offset I32 (counts/s, the velocity
@@ -43,60 +46,20 @@ class SdoWrite:
         return struct.pack('<' + self.fmt, self.value)
 
 
-def _mapping_entry(index: int, subindex: int, bits: int) -> int:
-    return (index << 16) | (subindex << 8) | bits
-
-
-def pdo_mapping_writes(node_id: int, *, force_object: int = LOAD_CELL_INPUT,
-                       n_pdos: int = 4) -> list[SdoWrite]:
-    """CiA 301 §7.5.2.36 mapping procedure for RPDO1, RPDO2 and TPDO1; the other PDOs
-    (RPDO3.., TPDO2..) disabled.
-
-    Each PDO: COB-ID with bit 31 set (invalid) → sub0 = 0 → entries → sub0 = n →
-    transmission type 1 → COB-ID valid.
-    """
-    invalid = 0x80000000
-    out: list[SdoWrite] = []
-    rx_cob, tx_cob = 0x200 + node_id, 0x180 + node_id
-    # RPDO1: controlword + target position
-    out += [
-        SdoWrite(0x1400, 1, 'I', invalid | rx_cob, 'RPDO1 COB-ID (disabled for mapping)'),
-        SdoWrite(0x1600, 0, 'B', 0, 'RPDO1 mapping count = 0'),
-        SdoWrite(0x1600, 1, 'I', _mapping_entry(0x6040, 0, 16), 'RPDO1 entry 1: 6040h controlword'),
-        SdoWrite(0x1600, 2, 'I', _mapping_entry(0x607A, 0, 32), 'RPDO1 entry 2: 607Ah target position'),
-        SdoWrite(0x1600, 0, 'B', 2, 'RPDO1 mapping count = 2'),
-        SdoWrite(0x1400, 2, 'B', 1, 'RPDO1 transmission type 1 (act on SYNC)'),
-        SdoWrite(0x1400, 1, 'I', rx_cob, 'RPDO1 COB-ID (valid)'),
-    ]
-    # RPDO2: velocity offset (CSP velocity feed-forward)
-    rx2_cob = 0x300 + node_id
-    out += [
-        SdoWrite(0x1401, 1, 'I', invalid | rx2_cob, 'RPDO2 COB-ID (disabled for mapping)'),
-        SdoWrite(0x1601, 0, 'B', 0, 'RPDO2 mapping count = 0'),
-        SdoWrite(0x1601, 1, 'I', _mapping_entry(0x60B1, 0, 32), 'RPDO2 entry 1: 60B1h velocity offset'),
-        SdoWrite(0x1601, 0, 'B', 1, 'RPDO2 mapping count = 1'),
-        SdoWrite(0x1401, 2, 'B', 1, 'RPDO2 transmission type 1 (act on SYNC)'),
-        SdoWrite(0x1401, 1, 'I', rx2_cob, 'RPDO2 COB-ID (valid)'),
-    ]
-    # TPDO1: statusword + position actual + load cell (or torque)
-    out += [
-        SdoWrite(0x1800, 1, 'I', invalid | tx_cob, 'TPDO1 COB-ID (disabled for mapping)'),
-        SdoWrite(0x1A00, 0, 'B', 0, 'TPDO1 mapping count = 0'),
-        SdoWrite(0x1A00, 1, 'I', _mapping_entry(0x6041, 0, 16), 'TPDO1 entry 1: 6041h statusword'),
-        SdoWrite(0x1A00, 2, 'I', _mapping_entry(0x6064, 0, 32), 'TPDO1 entry 2: 6064h position actual'),
-        SdoWrite(0x1A00, 3, 'I', _mapping_entry(force_object, 0, 16),
-                 f'TPDO1 entry 3: {force_object:04X}h force input'),
-        SdoWrite(0x1A00, 0, 'B', 3, 'TPDO1 mapping count = 3'),
-        SdoWrite(0x1800, 2, 'B', 1, 'TPDO1 transmission type 1 (every SYNC)'),
-        SdoWrite(0x1800, 1, 'I', tx_cob, 'TPDO1 COB-ID (valid)'),
-    ]
-    for n in range(1, n_pdos):
-        if n >= 2:
-            out.append(SdoWrite(0x1400 + n, 1, 'I', invalid | (0x200 + 0x100 * n + node_id),
-                                f'RPDO{n + 1} disabled'))
-        out.append(SdoWrite(0x1800 + n, 1, 'I', invalid | (0x180 + 0x100 * n + node_id),
-                            f'TPDO{n + 1} disabled'))
-    return out
+def pdo_mapping_writes(node_id: int, *, force_object: int = LOAD_CELL_INPUT) -> list[SdoWrite]:
+    """docs/can.md's default mapping (RPDO1, RPDO2, TPDO1; the other PDOs disabled) on a drive
+    with 4 RPDOs and 4 TPDOs, ``config/lumbar_drive.eds``: what :func:`~.plan.plan_drive`
+    plans for that dictionary (``force_object``: the load cell's index, sub-index 0)."""
+    from .dictionary import Dictionary, ObjectRef
+    from .plan import BootSettings, plan_drive
+    from ..config import config_dir
+    d = Dictionary(config_dir() / 'lumbar_drive.eds', node_id)
+    plan = plan_drive(d, BootSettings(
+        node_id=node_id, name=f'node {node_id}', master_node_id=127, master_heartbeat_ms=100,
+        drive_heartbeat_ms=50, period_us=2000, interpolation=(2, -3), homing_method=0,
+        following_error_counts=1, velocity_counts=1, acceleration_counts=1, soft_limits_counts=None,
+        home_offset_counts=None, load_cell=ObjectRef(force_object)))
+    return plan.mapping
 
 
 def frame_bits(dlc: int, *, extended: bool = False) -> int:

@@ -18,8 +18,9 @@ import can
 import numpy as np
 
 from .cia402 import NmtState, emcy_description
-from .pdo import TPDO1, frame_bits
-from .state import Feedback, _Drive
+from .pdo import frame_bits
+from .plan import PdoLayout
+from .state import Feedback, _Drive, _Module, _Node
 from .supervision import FaultKind, Sample, decode_error_frame
 
 __all__ = ['ReceiveMixin', 'BusListener']
@@ -30,17 +31,34 @@ _EMCY = struct.Struct('<HB5s')
 class ReceiveMixin:
     """The Notifier-thread callbacks and the measurement snapshot (see the module docstring)."""
 
-    def _tpdo_callback(self, d: _Drive) -> Callable[[int, bytearray, float], None]:
-        unpack = TPDO1.unpack_from
+    def _tpdo_callback(self, d: _Drive, layout: PdoLayout) -> Callable[[int, bytearray, float], None]:
+        """The feedback TPDO of drive ``d``, decoded as planned (``layout``): statusword,
+        position actual (plus the offset the master keeps), load cell (from its zero; from
+        the load-cell module when one carries it)."""
+        codec = layout.codec
+        unpack, size = codec.unpack_from, codec.size
+        i_sw, i_pos, i_load = (layout.position_of('statusword'), layout.position_of('position'),
+                               layout.position_of('load'))
+        module = self._module
         period = self.config.period
         to_si, force_si = self.scaling.to_si, self.scaling.force_to_si
         bus_time = self._bus_time
+        operational = NmtState.OPERATIONAL
 
         def on_tpdo(can_id: int, data: bytearray, timestamp: float) -> None:
-            if len(data) < TPDO1.size:
+            if len(data) < size:
                 return
-            sw, pos, load = unpack(data)
+            values = unpack(data)
+            sw, pos = values[i_sw], values[i_pos] + d.count_offset
+            if i_load is not None:
+                load = values[i_load] - d.load_zero
+            elif module is not None and module.loads:
+                load = module.loads[d.index] - module.zeros[d.index]
+            else:
+                load = 0
             bus_time(timestamp)
+            if not d.heartbeat:
+                d.nmt = operational               # a TPDO is sent only in OPERATIONAL
             prev = d.sample
             index, t = self._answered_sync(timestamp, None if prev is None else prev.sync_index)
             p = to_si(pos)
@@ -58,6 +76,23 @@ class ReceiveMixin:
             dt = max(h[-1][0] - h[0][0], (h[-1][2] - h[0][2]) * period)
             if len(h) >= 2 and dt > 0:
                 d.velocity = (h[-1][1] - h[0][1]) / dt
+        return on_tpdo
+
+    def _module_callback(self, m: _Module) -> Callable[[int, bytearray, float], None]:
+        """The load-cell module's TPDO: one reading per actuator, kept for the drives' samples."""
+        unpack, size = m.tpdo.codec.unpack_from, m.tpdo.codec.size
+
+        def on_tpdo(can_id: int, data: bytearray, timestamp: float) -> None:
+            if len(data) < size:
+                return
+            m.loads = unpack(data)
+            self._bus_time(timestamp)
+            if not m.heartbeat:
+                m.nmt = NmtState.OPERATIONAL
+            m.sync_index = self._answered_sync(timestamp)[0]
+            m.rx_time = time.perf_counter()
+            m.samples += 1
+            m.rx_total = self._tpdo_total
         return on_tpdo
 
     def _answered_sync(self, timestamp: float, previous: int | None = None) -> tuple[int, float]:
@@ -102,7 +137,7 @@ class ReceiveMixin:
             self._rx_wall = t
         return t
 
-    def heartbeat_age(self, d: _Drive) -> float:
+    def heartbeat_age(self, d: _Node) -> float:
         """s since drive ``d``'s last heartbeat, on the bus's clock (SAFETY 4).
 
         Judged on what was received, like :meth:`~.monitors.MonitorMixin._stale`: while the
@@ -120,7 +155,7 @@ class ReceiveMixin:
             return newest - d.hb_wall
         return wall - d.hb_wall
 
-    def _heartbeat_callback(self, d: _Drive) -> Callable[[int, bytearray, float], None]:
+    def _heartbeat_callback(self, d: _Node) -> Callable[[int, bytearray, float], None]:
         def on_heartbeat(can_id: int, data: bytearray, timestamp: float) -> None:
             if not data:
                 return
@@ -137,7 +172,7 @@ class ReceiveMixin:
             d.booted.set()
         return on_heartbeat
 
-    def _emcy_callback(self, d: _Drive) -> Callable[[int, bytearray, float], None]:
+    def _emcy_callback(self, d: _Node) -> Callable[[int, bytearray, float], None]:
         def on_emcy(can_id: int, data: bytearray, timestamp: float) -> None:
             if len(data) < 8:
                 data = bytes(data) + bytes(8 - len(data))

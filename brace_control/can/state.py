@@ -21,13 +21,15 @@ import numpy as np
 
 from ..config import ConfigError, DeviceConfig, as_device_config
 from .cia402 import State402, decode_state
+from .dictionary import ObjectRef, eds_files
 from .pdo import LOAD_CELL_INPUT, TORQUE_ACTUAL
+from .plan import PdoLayout, PdoSpec, pdo_specs
 from .supervision import Fault, Limits, Sample
 from .timing import TimingReport
 from .units import AxisScaling, actuator_kind, scaling_from_config
 
-__all__ = ['MasterState', 'MasterConfig', 'DriveStatus', 'BusStatus', 'MasterStatus', 'Feedback',
-           'interpolation_period']
+__all__ = ['MasterState', 'MasterConfig', 'LoadCellModule', 'load_cell_source', 'DriveStatus', 'BusStatus', 'MasterStatus',
+           'Feedback', 'interpolation_period']
 
 
 class MasterState(enum.Enum):
@@ -45,6 +47,16 @@ class MasterState(enum.Enum):
 
 
 @dataclass(frozen=True)
+class LoadCellModule:
+    """A CiA 401 analog-input module carrying the load cells (``can.load_cell_node``)."""
+
+    node_id: int
+    eds: Path
+    objects: tuple[ObjectRef, ...]          # one per actuator, in actuator order
+    tpdo: int = 1                           # the module's TPDO that carries them
+
+
+@dataclass(frozen=True)
 class MasterConfig:
     """Everything the master needs, read from the device YAML (SI units)."""
 
@@ -53,7 +65,8 @@ class MasterConfig:
     bitrate: int
     node_ids: tuple[int, ...]
     names: tuple[str, ...]
-    eds: Path | None
+    #: the EDS / DCF of each drive, in actuator order (``can.eds``: one file, or one per drive)
+    eds: tuple[Path, ...]
     sync_rate_hz: float
     boot_timeout: float
     drive_heartbeat_ms: int
@@ -66,7 +79,15 @@ class MasterConfig:
     scaling: AxisScaling
     limits: Limits
     home_lengths: tuple[float, ...] | None = None
-    force_object: int = LOAD_CELL_INPUT
+    #: the object carrying each actuator's load cell (or joint torque) on its drive;
+    #: ``None`` when :attr:`load_cell_module` carries them
+    load_cell_object: ObjectRef | None = ObjectRef(LOAD_CELL_INPUT)
+    load_cell_module: LoadCellModule | None = None
+    #: ``can.rpdo`` / ``can.tpdo`` of the YAML (``None``: docs/can.md's default mapping)
+    rpdo: dict[int, PdoSpec] | None = None
+    tpdo: dict[int, PdoSpec] | None = None
+    sdo_timeout: float = 0.1          # s an SDO answer may take (``can.sdo_timeout``)
+    sdo_retries: int = 1              # requests sent again after a time-out (``can.sdo_retries``)
     #: N/m (N·m/rad): each actuator's axial stiffness with its load path (``actuator.stiffness``);
     #: a relief's force gain comes from it
     stiffness: float = 1.0e6
@@ -107,12 +128,16 @@ class MasterConfig:
         master_id = int(dc.get_path('can.master_node_id'))
         if master_id in node_ids:
             raise ConfigError(f'parameter can.master_node_id = {master_id} collides with a drive id')
-        eds_name = str(dc.get_path('can.eds') or '')
-        eds = dc.relative_file(eds_name) if eds_name else None
-        if eds is not None and not eds.is_file():
-            from ..config import config_dir
-            alt = config_dir() / eds_name
-            eds = alt if alt.is_file() else None
+        eds = eds_files(dc, len(node_ids))
+        cell, module = load_cell_source(dc)
+        if module is not None and (module.node_id in node_ids or module.node_id == master_id):
+            raise ConfigError(f'parameter can.load_cell_node.node_id = {module.node_id} is also a '
+                              f"drive's or the master's node id ({list(node_ids)}, master {master_id})")
+        try:
+            rpdo = pdo_specs(dc.get_path('can.rpdo', None), 'rpdo')
+            tpdo = pdo_specs(dc.get_path('can.tpdo', None), 'tpdo')
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
         if home_lengths is None:
             home_lengths = _home_lengths(dc, mechanism)
         values: dict[str, Any] = dict(
@@ -133,12 +158,46 @@ class MasterConfig:
             following_error_window=float(dc.get_path('safety.following_error_window')),
             scaling=scaling, limits=limits,
             home_lengths=None if home_lengths is None else tuple(float(x) for x in home_lengths),
-            # linear actuators carry a load cell on 2401h; rotary drives report 6077h torque
-            force_object=(LOAD_CELL_INPUT if actuator_kind(dc) == 'linear' else TORQUE_ACTUAL),
+            # linear actuators carry a load cell (2401h by default); rotary drives report
+            # 6077h torque actual by default
+            load_cell_object=cell, load_cell_module=module, rpdo=rpdo, tpdo=tpdo,
+            sdo_timeout=float(dc.get_path('can.sdo_timeout')),
+            sdo_retries=int(dc.get_path('can.sdo_retries')),
             stiffness=float(dc.get_path('actuator.stiffness')),
         )
         values.update(overrides)
         return cls(**values)
+
+
+def load_cell_source(cfg: DeviceConfig) -> tuple[ObjectRef | None, LoadCellModule | None]:
+    """Where the load cells are wired (the YAML, read by the master and the simulator alike):
+    ``(object on each drive, None)`` from ``can.load_cell_object`` (empty: 2401h:0, or 6077h:0
+    torque actual on rotary drives), or ``(None, module)`` when ``can.load_cell_node.node_id``
+    names a CiA 401 module.
+
+    :raises ConfigError: an object reference that cannot be read, no module EDS, a wrong
+        number of module objects (one per actuator), each named.
+    """
+    n = len(cfg.get_path('can.node_ids'))
+    node_id = int(cfg.get_path('can.load_cell_node.node_id', 0) or 0)
+    try:
+        if not node_id:
+            text = str(cfg.get_path('can.load_cell_object', '') or '')
+            if text:
+                return ObjectRef.parse(text, what='parameter can.load_cell_object'), None
+            return ObjectRef(TORQUE_ACTUAL if actuator_kind(cfg) == 'rotary' else LOAD_CELL_INPUT), None
+        eds_name = str(cfg.get_path('can.load_cell_node.eds', '') or '')
+        if not eds_name:
+            raise ConfigError("parameter can.load_cell_node.eds is empty: name the load-cell module's EDS")
+        texts = cfg.get_path('can.load_cell_node.objects', None) or [f'0x6401:{i + 1}' for i in range(n)]
+        if len(texts) != n:
+            raise ConfigError(f'parameter can.load_cell_node.objects lists {len(texts)} objects for '
+                              f'{n} actuators: one per actuator, in actuator order')
+        objects = tuple(ObjectRef.parse(t, what='parameter can.load_cell_node.objects entry') for t in texts)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    return None, LoadCellModule(node_id, cfg.resolve_file(eds_name, 'can.load_cell_node.eds'), objects,
+                                int(cfg.get_path('can.load_cell_node.tpdo', 1)))
 
 
 def _home_lengths(cfg: DeviceConfig, mech: Any = None) -> tuple[float, ...] | None:
@@ -226,32 +285,54 @@ class _Setpoint:
 
 
 @dataclass
-class _Drive:
-    index: int
+class _Node:
+    """What the master keeps of one CANopen node it supervises: heartbeat, NMT state, EMCY."""
+
     name: str
     node_id: int
     node: canopen.RemoteNode
-    rpdo_id: int                           # RPDO1: controlword + 607Ah target
-    rpdo2_id: int                          # RPDO2: 60B1h velocity offset
-    sample: Sample | None = None
-    checked: Sample | None = None          # last sample the monitors saw
-    history: deque = field(default_factory=lambda: deque(maxlen=6))   # (t, pos, sync index)
-    velocity: float = 0.0
-    samples: int = 0
+    heartbeat: bool = True                 # it produces a heartbeat (1017h); else judged by TPDOs
     rx_time: float = -math.inf             # perf_counter of the last TPDO
-    rx_total: int = 0                      # master's TPDO count at this drive's last TPDO
+    rx_total: int = 0                      # master's TPDO count at this node's last TPDO
     hb_time: float = -math.inf             # monotonic of the last heartbeat / boot-up
     hb_wall: float = -math.inf             # its bus timestamp (wall clock; see _bus_time)
     nmt: int | None = None
     booted: threading.Event = field(default_factory=threading.Event)
     emcy: tuple[int, int, float] | None = None     # code, register, monotonic
     emcy_nonzero_time: float = -math.inf
-    target: int = 0                        # counts, sent in RPDO1
-    velocity_offset: int = 0               # counts/s, sent in RPDO2 (60B1h feed-forward)
-    offset_sent: int | None = None         # the last 60B1h sent (RPDO2 goes out when it changes)
-    rpdo_sent: tuple[int, int] | None = None   # the last (controlword, target) sent in RPDO1
+
+
+@dataclass
+class _Module(_Node):
+    """The load-cell module (``can.load_cell_node``): its latest readings, one per actuator."""
+
+    tpdo: PdoLayout | None = None
+    loads: tuple = ()                      # raw readings of the last TPDO, actuator order
+    zeros: tuple = ()                      # each channel's zero (counts), actuator order
+    sync_index: int = -1                   # the SYNC they answer
+    samples: int = 0
+
+
+@dataclass
+class _Drive(_Node):
+    index: int = 0
+    #: the RPDOs the master sends (planned against the drive's dictionary), and the bytes it
+    #: last sent in each (an RPDO goes out when its content changes)
+    rpdos: tuple[PdoLayout, ...] = ()
+    rpdo_sent: list = field(default_factory=list)
+    #: counts the master adds to the drive's 6064h (and takes from 607Ah): the home offset
+    #: when the drive has no writable 607Ch
+    count_offset: int = 0
+    load_zero: int | float = 0             # the load-cell reading at zero force (counts)
+    sample: Sample | None = None
+    checked: Sample | None = None          # last sample the monitors saw
+    history: deque = field(default_factory=lambda: deque(maxlen=6))   # (t, pos, sync index)
+    velocity: float = 0.0
+    samples: int = 0
+    target: int = 0                        # counts (the master's, offset included) of 607Ah
+    velocity_offset: int = 0               # counts/s of 60B1h (the feed-forward, when mapped)
     recent: deque = field(default_factory=lambda: deque(maxlen=16))  # Samples, by SYNC
-    sent: deque = field(default_factory=lambda: deque(maxlen=64))    # (SYNC index, target counts)
+    sent: deque = field(default_factory=lambda: deque(maxlen=128))   # (SYNC index, target counts)
     reset_phase: bool = False
     flagged: bool = False                  # warning / internal-limit bit seen last sample
     force_trend: deque = field(default_factory=lambda: deque(maxlen=10))   # |force| of recent samples

@@ -211,7 +211,7 @@ class Limits:
     step_margin: float             # m
     path_tolerance: float          # m
     force_limit: float             # N
-    saturation_counts: int         # |2401h| at or above -> saturated
+    saturation_counts: float       # |load-cell counts from its zero| at or above -> saturated
     stale_periods: int
     heartbeat_timeout: float       # s
     boot_timeout: float            # s
@@ -224,6 +224,7 @@ class Limits:
     #: every actuator has :attr:`stroke`
     strokes: tuple[tuple[float, float], ...] | None = None
     unit: str = 'm'                # 'm' (linear) or 'rad' (rotary), for messages
+    saturation_fraction: float = 0.95   # of the load cell's full scale (safety.saturation_fraction)
 
     def stroke_of(self, index: int | None) -> tuple[float, float]:
         """The range of actuator ``index`` (the common :attr:`stroke` if not per actuator)."""
@@ -276,6 +277,7 @@ class Limits:
             soft_force_limit=soft,
             release_force=release,
             saturation_counts=scaling.saturation_counts(float(get('safety.saturation_fraction'))),
+            saturation_fraction=float(get('safety.saturation_fraction')),
             stale_periods=int(get('safety.stale_periods')),
             heartbeat_timeout=consumer / 1000.0,
             boot_timeout=float(get('can.boot_timeout')),

@@ -23,7 +23,8 @@ from typing import Any
 
 from ..config import ConfigError, as_device_config
 
-__all__ = ['AxisScaling', 'scaling_from_config', 'actuator_kind', 'rated_joint_torque', 'INT16_MIN', 'INT16_MAX', 'INT32_MIN', 'INT32_MAX']
+__all__ = ['AxisScaling', 'scaling_from_config', 'actuator_kind', 'rated_joint_torque', 'LoadInput',
+           'INT16_MIN', 'INT16_MAX', 'INT32_MIN', 'INT32_MAX']
 
 INT16_MIN, INT16_MAX = -(1 << 15), (1 << 15) - 1
 INT32_MIN, INT32_MAX = -(1 << 31), (1 << 31) - 1
@@ -90,21 +91,61 @@ class AxisScaling:
         """m/s² -> counts/s²."""
         return _clamp_int32(acceleration * self.counts_per_unit, 'acceleration')
 
-    # -- load cell (2401h) ----------------------------------------------------------
+    # -- load cell (2401h, or the object can.load_cell_object names) -----------------
     def force_to_si(self, counts: int | float) -> float:
-        """Load-cell counts -> N (push positive)."""
+        """Load-cell counts (from the input's zero, :class:`LoadInput`) -> N (push positive)."""
         return counts * self.newton_per_count
 
-    def force_to_counts(self, force: float) -> int:
-        """N -> load-cell counts, saturated to INT16 (what a real amplifier does)."""
-        return max(INT16_MIN, min(INT16_MAX, round(force / self.newton_per_count)))
+    def force_to_counts(self, force: float, load: 'LoadInput | None' = None) -> int | float:
+        """N -> the reading of the load-cell input ``load`` (default INTEGER16 with zero at 0):
+        its zero plus the counts, quantised and saturated to what the input can show (what a
+        real amplifier does); a REAL32/64 input reads the unrounded value."""
+        load = load or LoadInput.INT16
+        value = force / self.newton_per_count
+        if load.real:
+            return load.zero + value
+        return max(load.low, min(load.high, load.zero + round(value)))
 
-    def saturation_counts(self, fraction: float) -> int:
-        """|counts| at or above which the load cell counts as saturated.
+    def saturation_counts(self, fraction: float, span: float = INT16_MAX) -> float:
+        """|counts| from the zero at or above which the load cell counts as saturated.
 
-        ``fraction`` of the rated full scale, never above what INT16 can show.
+        ``fraction`` of the rated full scale, never above ``span``, the most the input can show
+        on either side of its zero (:attr:`LoadInput.span`; INTEGER16: 32767).
         """
-        return min(INT16_MAX, math.floor(fraction * self.rated_force / self.newton_per_count))
+        return min(span, math.floor(fraction * self.rated_force / self.newton_per_count))
+
+
+@dataclass(frozen=True)
+class LoadInput:
+    """The object a load cell is read from, as a number: its range and its zero.
+
+    A signed integer reads zero force at 0; an unsigned one (an ADC input of a bipolar
+    amplifier) at mid-scale, 2^(bits-1); a REAL32/64 at 0.0. ``span`` is the most it shows
+    on either side of its zero.
+    """
+
+    low: float
+    high: float
+    zero: float
+    real: bool = False
+
+    @classmethod
+    def of(cls, code: str) -> LoadInput:
+        """From the struct code of its data type (``'h'`` INTEGER16, ``'H'`` UNSIGNED16, ``'f'`` ...)."""
+        if code in ('f', 'd'):
+            return cls(-math.inf, math.inf, 0.0, True)
+        import struct
+        bits = 8 * struct.calcsize(code)
+        if code.islower():
+            return cls(-(1 << (bits - 1)), (1 << (bits - 1)) - 1, 0)
+        return cls(0, (1 << bits) - 1, 1 << (bits - 1))
+
+    @property
+    def span(self) -> float:
+        return min(self.high - self.zero, self.zero - self.low)
+
+
+LoadInput.INT16 = LoadInput(INT16_MIN, INT16_MAX, 0)     # type: ignore[attr-defined]
 
 
 def actuator_kind(cfg: Mapping[str, Any]) -> str:

@@ -206,7 +206,7 @@ class CanDriverNode(LifecycleNode):
         self._constructed = False             # a ConfigError leaves a half-built node to destroy
         super().__init__(node_name, **kwargs)
         self.cfg = declare_device_parameters(self, ('mechanism', 'actuator', 'can', 'safety', 'sim',
-                                                     'trajectory', 'interaction'))
+                                                     'trajectory', 'interaction'), cli_args=kwargs.get('cli_args'))
         self.names: tuple[str, ...] = tuple(self.cfg['mechanism']['actuator_names'])
         self.mechanism = self._mechanism()
         self.master_config = MasterConfig.from_device_config(self.cfg, mechanism=self.mechanism)
@@ -1066,6 +1066,12 @@ class CanDriverNode(LifecycleNode):
                load_percent=f'{b.load * 100:.1f}', frames_per_s=f'{b.frames_per_s:.0f}',
                error_state=b.error_state, error_frames=b.error_frames, send_failures=b.send_failures,
                bitrate=self.master_config.bitrate)
+        report = m.boot_report
+        warned = [line for line in report if line.startswith('warning')]
+        status('boot_plan', 'warn' if warned else 'ok',
+               f'{len(report)} object(s) of the drives\' dictionaries skipped' + (
+                   f', {len(warned)} needing action' if warned else '') if report else
+               "every object of docs/can.md written", **{f'skip_{i + 1}': line for i, line in enumerate(report)})
         t = st.timing
         overrun_frac = t.overrun_fraction
         status('cycle', 'warn' if overrun_frac > 1e-3 else 'ok',

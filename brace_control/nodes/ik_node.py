@@ -66,7 +66,7 @@ class IkNode(Node):
 
     def __init__(self, *, node_name: str = 'ik_node', **kwargs) -> None:
         super().__init__(node_name, **kwargs)
-        self.cfg = declare_device_parameters(self, ('mechanism', 'actuator', 'trajectory'))
+        self.cfg = declare_device_parameters(self, ('mechanism', 'actuator', 'trajectory'), cli_args=kwargs.get('cli_args'))
         self.mechanism = mechanism_from_config(self.cfg)
         self.base_frame: str = self.cfg['base_frame']
         self.actuator_names = tuple(self.mechanism.actuator_names)

@@ -27,8 +27,10 @@ from rclpy.exceptions import (InvalidParameterTypeException,
                               InvalidParameterValueException)
 from rclpy.node import Node
 
+from pathlib import Path
+
 from ..config import ConfigError, DeviceConfig
-from ..schema import ROS_BUILTIN_PREFIXES, SCHEMA, Param, nest, param_type
+from ..schema import ROS_BUILTIN_PREFIXES, SCHEMA, Param, lookup, nest, param_type
 
 __all__ = ['Param', 'SCHEMA', 'declare_device_parameters', 'ConfigError', 'params_file_source']
 
@@ -64,17 +66,22 @@ def _plain(value: Any) -> Any:
     return value
 
 
+def params_files(argv: Sequence[str] | None = None) -> list[str]:
+    """The ``--params-file`` (s) in ``argv`` (default ``sys.argv``) after ``--ros-args``."""
+    argv = list(sys.argv if argv is None else argv)
+    return [argv[i + 1] for i, a in enumerate(argv[:-1])
+            if a == '--params-file' and '--ros-args' in argv[:i]]
+
+
 def params_file_source(argv: Sequence[str] | None = None) -> str | None:
     """The ``--params-file`` (s) in ``argv`` (default ``sys.argv``) after ``--ros-args``, for
     messages; ``None`` when there is none."""
-    argv = list(sys.argv if argv is None else argv)
-    files = [argv[i + 1] for i, a in enumerate(argv[:-1])
-             if a == '--params-file' and '--ros-args' in argv[:i]]
-    return ', '.join(files) or None
+    return ', '.join(params_files(argv)) or None
 
 
 def declare_device_parameters(node: Node, sections: Iterable[str], *,
-                              source: str | None = None) -> DeviceConfig:
+                              source: str | None = None,
+                              cli_args: Sequence[str] | None = None) -> DeviceConfig:
     """Check the node's parameters against the schema, declare those of ``sections`` on
     ``node`` and return them nested.
 
@@ -86,13 +93,19 @@ def declare_device_parameters(node: Node, sections: Iterable[str], *,
 
     :param source: where the parameters came from, for messages (default: the
         ``--params-file`` of the command line).
+    :param cli_args: the node's own command line (``cli_args`` of the node), searched for its
+        ``--params-file`` before ``sys.argv``: the files the parameters name (``can.eds``)
+        are relative to that file's directory, as in the pure API.
     :raises ConfigError: a parameter the schema does not know (naming the closest known
         one), a value of the wrong type, out of range, or not one of its choices; the
         message names the parameter and what was expected.
     """
     sections = set(sections)
     given = _overrides(node)
-    where = source or params_file_source() or f'the parameters of node {node.get_name()!r}'
+    files = params_files(cli_args or ()) or params_files()
+    where = source or ', '.join(files) or f'the parameters of node {node.get_name()!r}'
+    # the last parameter file wins in ROS; the files it names are relative to it
+    path = Path(files[-1]).resolve() if files else None
     device = {k: v for k, v in given.items() if not k.startswith(ROS_BUILTIN_PREFIXES)}
     nested: dict[str, Any] = {}
     for name, value in device.items():
@@ -120,6 +133,12 @@ def declare_device_parameters(node: Node, sections: Iterable[str], *,
         if value is None:            # optional, not given: absent, as in the pure API
             continue
         nest(cfg, name, declare(name, value, _descriptor(name, spec)))
+    for name in sorted(given):       # wildcard entries (can.rpdo.<n>.mapping): as given
+        spec = lookup(name)
+        group = name.split('.', 1)[0]
+        if spec is None or group not in sections or name in SCHEMA or name.startswith('mechanism.'):
+            continue
+        nest(cfg, name, declare(name, given[name], _descriptor(name, spec)))
 
     if 'mechanism' in sections:
         mech_keys = sorted(k for k in given if k.startswith('mechanism.'))
@@ -130,7 +149,7 @@ def declare_device_parameters(node: Node, sections: Iterable[str], *,
         for name in mech_keys:
             nest(cfg, name, declare(name, given[name], ParameterDescriptor(
                 description='mechanism geometry (from the device file)', read_only=True)))
-    out = DeviceConfig(cfg, source=where)
+    out = DeviceConfig(cfg, path, source=where)
     for key in [k for k, v in out.items() if isinstance(v, dict) and k not in sections]:
         del out[key]                 # only what the node declared, never silent defaults
     return out

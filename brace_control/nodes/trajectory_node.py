@@ -93,7 +93,7 @@ class TrajectoryNode(Node):
 
     def __init__(self, *, node_name: str = 'trajectory_node', **kwargs) -> None:
         super().__init__(node_name, **kwargs)
-        self.cfg = declare_device_parameters(self, ('mechanism', 'trajectory', 'actuator', 'safety'))
+        self.cfg = declare_device_parameters(self, ('mechanism', 'trajectory', 'actuator', 'safety'), cli_args=kwargs.get('cli_args'))
         self.mechanism = mechanism_from_config(self.cfg)
         self.base_frame: str = self.cfg['base_frame']
         self.platform_frame: str = self.cfg['platform_frame']

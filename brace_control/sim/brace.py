@@ -90,6 +90,8 @@ from typing import Any
 
 import numpy as np
 
+from ..can.dictionary import ObjectRef, eds_files
+from ..can.state import load_cell_source
 from ..can.units import actuator_kind, scaling_from_config
 from ..config import ConfigError, DeviceConfig, load_device_config
 from ..mechanisms import mechanism_from_config
@@ -97,6 +99,7 @@ from ..mechanisms.planar_floats import PlanarRprFloats
 from .drive import DriveLimits, SimulatedDrive
 from .faults import FaultInjector
 from .host import SimBus
+from .module import SimulatedAnalogModule
 
 __all__ = ['SimulatedBrace', 'BraceTruth']
 
@@ -188,7 +191,8 @@ class SimulatedBrace:
     :param channel: python-can channel; default ``can.channel`` from the YAML. Tests pass a
         unique channel per test.
     :param interface: python-can interface; default ``can.interface`` (``virtual``).
-    :param eds: the drives' EDS; default ``can.eds`` relative to the YAML.
+    :param eds: the drives' EDS (one path, or one per drive); default ``can.eds`` relative to
+        the YAML.
     :param seed: load-cell noise seed; default ``sim.seed``.
     :param dt_source: see :class:`~brace_control.sim.host.SimBus` (``'1006h'`` default).
     :param start: open the bus and boot the drives now (else call :meth:`start`).
@@ -211,12 +215,19 @@ class SimulatedBrace:
         n = self.mechanism.n_actuators
         if len(self.node_ids) != n:
             raise ConfigError(f'can.node_ids has {len(self.node_ids)} ids for {n} actuators')
-        eds_path = Path(eds) if eds is not None else \
-            cfg.relative_file(str(can_cfg['eds']))
+        # the drives' dictionaries, one per drive (can.eds: one file, or a list)
+        if eds is None:
+            eds_paths = list(eds_files(cfg, n))
+        else:
+            eds_paths = [Path(eds)] * n if isinstance(eds, (str, Path)) else [Path(e) for e in eds]
+        # where the load cells are wired: a drive object each, or a CiA 401 module
+        load_cell, module = load_cell_source(cfg)
+        load_cell = load_cell or ObjectRef(0x2401)        # (the drives' own input is unused then)
         #: rotary drives (``actuator.kind: rotary``): positions in rad, the effort is the joint
         #: torque reported as 6077h torque actual; linear: m and the load cell 2401h
         self.rotary = actuator_kind(cfg) == 'rotary'
         scaling = scaling_from_config(cfg)          # the master's device units (can/units.py)
+        self._scaling = scaling
         #: encoder counts per actuator unit (m, or rad for rotary drives)
         self.counts_per_m = scaling.counts_per_unit
         #: N (N·m) per count of 2401h (rotary: of 6077h, per mille of the rated torque)
@@ -284,14 +295,25 @@ class SimulatedBrace:
                 stroke_min=float(lo[i]), stroke_max=float(hi[i]),
                 # 6077h torque actual is in per mille of this (rotary: the rated torque)
                 max_force=self.rated_force if self.rotary else float(act['max_force']))
-            self.drives.append(SimulatedDrive(node_id, eds_path, limits=limits,
+            self.drives.append(SimulatedDrive(node_id, eds_paths[i], limits=limits,
                                               initial_length_m=float(q0[i]),
-                                              bandwidth_hz=self.drive_bandwidth_hz))
+                                              bandwidth_hz=self.drive_bandwidth_hz,
+                                              load_cell=(load_cell.index, load_cell.subindex)))
+        #: the CiA 401 module carrying the load cells (``can.load_cell_node``), or None
+        self.module: SimulatedAnalogModule | None = None
+        if module is not None:
+            self.module = SimulatedAnalogModule(module.node_id, module.eds, module.objects)
+        #: where each load-cell reading goes: (device, index into its readings, input)
+        self._load_sinks = ([(self.module, i, self.module.load_inputs[i]) for i in range(n)]
+                            if self.module is not None else
+                            [(d, None, d.load_input) for d in self.drives])
         self.host = SimBus(channel or str(can_cfg['channel']),
                            interface=interface or str(can_cfg['interface']),
                            sync_handler=self._on_sync, dt_source=dt_source)
         for d in self.drives:
             self.host.add(d)
+        if self.module is not None:
+            self.host.add(self.module)
         self.lock = threading.Lock()
         self._pose = np.asarray(self.mechanism.home_pose, dtype=float).copy()
         self._f_unloaded = np.zeros(n)             # efforts holding the mechanism itself (see _rigid)
@@ -532,6 +554,8 @@ class SimulatedBrace:
             self._history.append(truth)
         for d in self.drives:
             d.on_sync(dt, phase='comm')
+        if self.module is not None:
+            self.module.on_sync(dt, phase='comm')
 
     def _fast_legs(self) -> PlanarRprFloats | None:
         """The plain-float leg model (:class:`~brace_control.mechanisms.planar_floats.
@@ -792,15 +816,19 @@ class SimulatedBrace:
             forces_l = forces.tolist()
             brace_wrench = J.T @ (forces - self._f_unloaded)  # the bars' own push is not on the body
         noise = self._noise() if self.noise_n > 0.0 else [0.0] * len(self.drives)
-        rated, npc = self.rated_force, self.n_per_count
+        rated, to_counts = self.rated_force, self._scaling.force_to_counts
         counts_l = []
-        for i, (d, fi) in enumerate(zip(self.drives, forces_l)):
+        for i, (d, fi, (sink, k, load)) in enumerate(zip(self.drives, forces_l, self._load_sinks)):
             ov = self.load_cell_override[i]
             reading = fi + self.offset_n + noise[i] if ov is None else ov
             reading = min(max(reading, -rated), rated)       # saturation at full scale
-            c = min(max(round(reading / npc), -32768), 32767)  # quantisation, INT16
-            counts_l.append(c)
-            d.load_cell_counts = c
+            # quantisation and the input's range (INTEGER16: 0 N at 0; UNSIGNED16: mid-scale)
+            c = to_counts(reading, load)
+            counts_l.append(c - load.zero)
+            if k is None:
+                sink.load_cell_counts = c
+            else:
+                sink.readings[k] = c
             # rotary drives report the measured joint torque in 6077h (per mille of rated)
             d.force_n = reading if self.rotary else fi
         counts = np.array(counts_l)

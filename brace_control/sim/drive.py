@@ -69,19 +69,19 @@ from __future__ import annotations
 
 import functools
 import math
-import struct
-import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-import canopen
-from canopen import objectdictionary as odmod
-from canopen.sdo import SdoAbortedError, SdoServer
+from canopen.sdo import SdoAbortedError
 
-from ..can.cia402 import (STATE_STATUSWORD, EmcyCode, ErrorRegister, NmtState, OpMode,
-                          SdoAbortCode, State402, Statusword, error_register_bits)
+from ..can.cia402 import (STATE_STATUSWORD, EmcyCode, NmtState, OpMode, SdoAbortCode, State402,
+                          Statusword)
+from ..can.dictionary import STRUCT_CODES, ObjectRef
+from ..can.pdo import LOAD_CELL_INPUT
+from ..can.units import LoadInput
+from .device import SimulatedDevice
 
 __all__ = [
     'DriveLimits', 'SimulatedDrive', 'NmtState', 'State402', 'EmcyCode',
@@ -112,13 +112,6 @@ _SW_INTERNAL_LIMIT = int(Statusword.INTERNAL_LIMIT)
 _SW_OP_12 = int(Statusword.OP_SPECIFIC_12)     # CSP: follows the command; homing: attained
 _SW_OP_13 = int(Statusword.OP_SPECIFIC_13)     # CSP: following error; homing: error
 
-_STRUCT_CODE = {
-    odmod.UNSIGNED8: 'B', odmod.INTEGER8: 'b', odmod.UNSIGNED16: 'H',
-    odmod.INTEGER16: 'h', odmod.UNSIGNED32: 'I', odmod.INTEGER32: 'i',
-    odmod.BOOLEAN: 'B',
-}
-
-
 _POWERED = frozenset((State402.READY_TO_SWITCH_ON, State402.SWITCHED_ON,
                       State402.OPERATION_ENABLED, State402.QUICK_STOP_ACTIVE))
 # the statusword bits a state alone sets: bits 0-3, 5, 6 of CiA 402-2 table 30, remote (9),
@@ -147,38 +140,7 @@ class DriveLimits:
     max_force: float = 250.0
 
 
-class _Pdo:
-    """One PDO's communication + mapping, compiled for the hot path."""
-
-    __slots__ = ('num', 'cob_id', 'valid', 'trans_type', 'entries', 'codec', 'getters',
-                 'sync_count', 'event_ms', 'next_event', 'pending')
-
-    def __init__(self, num: int) -> None:
-        self.num = num
-        self.cob_id = 0
-        self.valid = False
-        self.trans_type = 255
-        self.entries: list[tuple[int, int]] = []
-        self.codec = struct.Struct('<')
-        #: one zero-argument reader per mapped entry, ``getter() == drive._get(index, sub)``
-        self.getters: tuple[Callable[[], int], ...] = ()
-        self.sync_count = 0
-        self.event_ms = 0
-        self.next_event = 0.0
-        self.pending: bytes | None = None
-
-
-class _Network:
-    """The shim canopen's SdoServer sends through."""
-
-    def __init__(self, drive: 'SimulatedDrive') -> None:
-        self._drive = drive
-
-    def send_message(self, can_id: int, data: bytes | bytearray) -> None:
-        self._drive._tx(can_id, bytes(data))
-
-
-class SimulatedDrive:
+class SimulatedDrive(SimulatedDevice):
     """A simulated CiA 402 drive with an incremental encoder and a load-cell input (2401h).
 
     :param node_id: CANopen node id 1..127.
@@ -199,9 +161,8 @@ class SimulatedDrive:
                  initial_length_m: float | None = None,
                  send: Callable[[int, bytes], None] | None = None,
                  clock: Callable[[], float] = time.monotonic,
-                 bandwidth_hz: float = DEFAULT_BANDWIDTH_HZ) -> None:
-        if not 1 <= node_id <= 127:
-            raise ValueError(f'node id must be 1..127, got {node_id}')
+                 bandwidth_hz: float = DEFAULT_BANDWIDTH_HZ,
+                 load_cell: tuple[int, int] = (LOAD_CELL_INPUT, 0)) -> None:
         if isinstance(bandwidth_hz, bool) or not isinstance(bandwidth_hz, (int, float)) \
                 or not math.isfinite(bandwidth_hz) or bandwidth_hz <= 0.0:
             raise ValueError(f'position-loop bandwidth must be a positive number of Hz, '
@@ -209,49 +170,32 @@ class SimulatedDrive:
         #: position-loop bandwidth (Hz) and gain ``Kp = 2 pi bandwidth`` (1/s)
         self.bandwidth_hz = float(bandwidth_hz)
         self.kp = 2.0 * math.pi * self.bandwidth_hz
-        self.node_id = node_id
-        self.eds = str(eds)
-        self.od = canopen.import_od(self.eds, node_id)
-        self.object_dictionary = self.od     # the name canopen's SdoServer reads
         self.limits = limits or DriveLimits()
-        self._send = send
-        self._clock = clock
-        self.lock = threading.RLock()
         cpm = self.limits.counts_per_m
         self._cpm = cpm
         # ---- physical actuator (SI) ----
         mid = 0.5 * (self.limits.stroke_min + self.limits.stroke_max)
         self.length_m = float(mid if initial_length_m is None else initial_length_m)
         self.velocity_mps = 0.0
-        self.load_cell_counts = 0       # 2401h, set by the physics each SYNC
+        #: the object the load cell is wired to (2401h, or a drive's analog input such as
+        #: 3220h:1), and what that input can show (its data type from the dictionary)
+        self.load_cell = (int(load_cell[0]), int(load_cell[1]))
+        self.load_cell_counts: int | float = 0      # its reading, set by the physics each SYNC
         self.force_n = 0.0              # true actuator force (for 6077h)
         # ---- fault injection state ----
         self.stalled = False            # actuator mechanically blocked
         self.encoder_frozen_at: int | None = None   # 6064h frozen at this value
         self.encoder_jump_counts = 0    # added to 6064h
-        self.heartbeat_silenced = False
-        self.disconnected = False       # no TX, no RX (cable pulled)
-        self.tpdo_muted = False         # TPDOs not sent (stale data at the master)
         self.injected_warning = False
         self._injected_faults: set[int] = set()
-        # ---- CANopen state ----
-        self.nmt_state = NmtState.INITIALISING
-        self._store: dict[tuple[int, int], int] = {}
-        self._rpdo = [_Pdo(n) for n in range(1, 5)]
-        self._tpdo = [_Pdo(n) for n in range(1, 5)]
-        self._rpdo_by_cob: dict[int, _Pdo] = {}
-        self._net = _Network(self)
-        self._sdo = SdoServer(0x600 + node_id, 0x580 + node_id, self)
-        self._sdo.network = self._net  # type: ignore[assignment]
-        self.sync_cob_id = 0x80
-        self.hb_period_s = 0.0
-        self._next_hb = math.inf
-        self._hb_consumer_id = 0
-        self._hb_consumer_s = 0.0
-        self._hb_deadline = math.inf    # inf: not monitoring (no heartbeat received yet)
-        self.master_heartbeat_lost = False
-        self._err_history: list[int] = []
-        self.emcy_log: list[tuple[float, int, int, bytes]] = []  # (t, code, reg, data) sent
+        self._ff_mapped = True          # an RPDO carries 60B1h (else the demand's slope)
+        self._sync_dt = 0.002           # the last SYNC interval (60C2h absent: the period)
+        super().__init__(node_id, eds, send=send, clock=clock)
+        var = self.dictionary.var(ObjectRef(*self.load_cell))
+        self.load_input = LoadInput.of(STRUCT_CODES[var.data_type]) \
+            if var is not None and var.data_type in STRUCT_CODES else LoadInput.INT16
+        #: the modes of operation 6060h takes: 6502h's, else CSP and homing
+        self.modes = frozenset(self.dictionary.supported_modes() or (MODE_CSP, MODE_HOMING))
         # ---- CiA 402 state ----
         self.state = State402.NOT_READY_TO_SWITCH_ON
         self._controlword = 0
@@ -328,20 +272,6 @@ class SimulatedDrive:
         """EMCY codes of the latched fault causes (empty unless in FAULT)."""
         return frozenset(self._faults)
 
-    def attach(self, send: Callable[[int, bytes], None]) -> None:
-        """Give the drive its transmit function (a bus)."""
-        self._send = send
-
-    def power_on(self) -> None:
-        """CiA 301 initialisation: reset application + communication, boot-up, PRE-OPERATIONAL."""
-        with self.lock:
-            self._nmt_reset(application=True)
-
-    def read_od(self, index: int, subindex: int = 0) -> int:
-        """The current value of an object (as the SDO server would return it)."""
-        with self.lock:
-            return self._get(index, subindex)
-
     # fault injection (used by brace_control.sim.faults)
     def send_emcy(self, code: int, data: bytes = b'', *, fault: bool = False) -> None:
         """Send an EMCY; with ``fault`` also enter FAULT with this (injected) cause,
@@ -363,206 +293,25 @@ class SimulatedDrive:
 
     # ------------------------------------------------------------------ bus entry points
 
-    def listens_to(self) -> set[int]:
-        """COB-IDs of the frames this drive acts on besides NMT and SYNC: its valid RPDOs,
-        its SDO requests and the heartbeat it consumes (a bus may route by them)."""
-        with self.lock:
-            cobs = set(self._rpdo_by_cob) | {0x600 + self.node_id}
-            if self._hb_consumer_id:
-                cobs.add(0x700 + self._hb_consumer_id)
-            return cobs
-
-    def on_frame(self, cob_id: int, data: bytes, t: float) -> None:
-        """A received frame other than SYNC (NMT, SDO, RPDO, heartbeats)."""
-        if self.disconnected:
-            return
-        with self.lock:
-            if cob_id == 0:
-                self._on_nmt(data)
-            elif cob_id == 0x600 + self.node_id:
-                if self.nmt_state in (NmtState.PRE_OPERATIONAL, NmtState.OPERATIONAL) \
-                        and len(data) == 8:
-                    self._sdo.on_request(cob_id, data, t)
-            elif cob_id == 0x700 + self._hb_consumer_id and self._hb_consumer_s > 0:
-                self._hb_deadline = t + self._hb_consumer_s
-                if self.master_heartbeat_lost:
-                    self.master_heartbeat_lost = False
-            else:
-                pdo = self._rpdo_by_cob.get(cob_id)
-                if pdo is not None and self.nmt_state == NmtState.OPERATIONAL:
-                    if len(data) < pdo.codec.size:
-                        return  # CiA 301: too short -> not processed (EMCY 8210h)
-                    if pdo.trans_type <= 240:
-                        pdo.pending = data
-                    else:
-                        self._apply_rpdo(pdo, data)
-
-    def on_sync(self, dt: float, *, phase: str = 'all') -> None:
-        """SYNC (CiA 301 §7.2.5). ``phase``: ``'motion'`` advances the actuator by ``dt``
-        (the interval since the previous SYNC); ``'comm'`` sends the synchronous TPDOs,
-        applies the RPDOs latched since the previous SYNC and starts the CSP reference
-        segment towards their target; ``'all'`` both (a
-        :class:`~brace_control.sim.brace.SimulatedBrace` runs the physics in between)."""
-        if self.disconnected:
-            return
-        with self.lock:
-            if phase in ('motion', 'all'):
-                self._motion_step(dt)
-            if phase in ('comm', 'all'):
-                if self.nmt_state == NmtState.OPERATIONAL:
-                    for pdo in self._tpdo:
-                        if pdo.valid and pdo.trans_type <= 240:
-                            pdo.sync_count += 1
-                            if pdo.sync_count >= max(1, pdo.trans_type):
-                                pdo.sync_count = 0
-                                if not self.tpdo_muted:
-                                    self._tx(pdo.cob_id, self._pack_tpdo(pdo))
-                    for pdo in self._rpdo:
-                        if pdo.pending is not None:
-                            data, pdo.pending = pdo.pending, None
-                            self._apply_rpdo(pdo, data)
-                if self.state == State402.OPERATION_ENABLED \
-                        and self._store[(0x6061, 0)] == MODE_CSP:
-                    self._start_segment()
-
-    def heartbeat_due(self, now: float) -> None:
-        """Send the heartbeat (1017h) if it is due: from the timer, and on every SYNC (a real
-        drive's producer does not wait for a host thread; see :mod:`brace_control.sim.host`)."""
-        if self.disconnected or now < self._next_hb:
-            return
-        with self.lock:
-            self._produce_heartbeat(now)
-
-    def _produce_heartbeat(self, now: float) -> None:
-        if now >= self._next_hb:
-            if not self.heartbeat_silenced:
-                self._tx(0x700 + self.node_id, bytes((int(self.nmt_state),)))
-            if self.hb_period_s > 0:
-                nxt_hb = self._next_hb + self.hb_period_s
-                self._next_hb = nxt_hb if nxt_hb > now else now + self.hb_period_s
-            else:
-                self._next_hb = math.inf
-
-    def tick(self, now: float, heard_until: float | None = None) -> float:
-        """Timers: heartbeat producer, heartbeat consumer, TPDO event timers.
-
-        :param heard_until: the consumer judges silence up to this instant (monotonic s;
-            default ``now``): frames sent before it have been handed to this drive (a
-            frame still queued for the simulator's receive thread is not silence).
-        :returns: the next time (monotonic s) this drive needs a tick.
-        """
-        if self.disconnected:
-            return now + 0.05
-        heard = now if heard_until is None else min(now, heard_until)
-        with self.lock:
-            self._produce_heartbeat(now)
-            if heard >= self._hb_deadline:
-                self._hb_deadline = math.inf
-                self._on_master_heartbeat_lost()
-            # a deadline passed by the clock but not by the frames received: look again soon
-            nxt = min(self._next_hb, self._hb_deadline if self._hb_deadline > now else now + 0.005)
-            if self.nmt_state == NmtState.OPERATIONAL:
-                for pdo in self._tpdo:
-                    if pdo.valid and pdo.trans_type >= 254 and pdo.event_ms > 0:
-                        if now >= pdo.next_event:
-                            if not self.tpdo_muted:
-                                self._tx(pdo.cob_id, self._pack_tpdo(pdo))
-                            pdo.next_event = now + pdo.event_ms / 1000.0
-                        nxt = min(nxt, pdo.next_event)
-            # no SYNC for long: the fault reaction still ends (motor stopped)
-            if self.state == State402.FAULT_REACTION_ACTIVE and self._last_sync_t is not None \
-                    and now - self._last_sync_t > 0.05:
-                self.velocity_mps = 0.0
-                self._set_state(State402.FAULT)
-            return min(nxt, now + 0.05)
-
-    # ------------------------------------------------------------------ transmit
-
-    def _tx(self, cob_id: int, data: bytes) -> None:
-        if self._send is not None and not self.disconnected:
-            self._send(cob_id, data)
-
-    def _emcy(self, code: int, data: bytes = b'') -> None:
-        """CiA 301 §7.2.7: EMCY frame = code (U16) + error register (U8) + 5 bytes."""
-        if code:
-            self._err_history.insert(0, code & 0xFFFF)
-            del self._err_history[8:]
-        reg = self._error_register()
-        payload = struct.pack('<HB', code & 0xFFFF, reg) + bytes(data[:5]).ljust(5, b'\0')
-        self.emcy_log.append((self._clock(), code, reg, payload))
-        if self.nmt_state in (NmtState.PRE_OPERATIONAL, NmtState.OPERATIONAL):
-            cob = self._store[(0x1014, 0)]
-            if not cob & 0x80000000:
-                self._tx(cob & 0x7FF, payload)
-
-    def _error_register(self) -> int:
-        reg = ErrorRegister(0)
-        for code in self._faults:
-            reg |= error_register_bits(code)
-        if self.master_heartbeat_lost:
-            reg |= ErrorRegister.GENERIC | ErrorRegister.COMMUNICATION
-        return int(reg)
-
-    # ------------------------------------------------------------------ NMT (CiA 301 §7.3.2)
-
-    def _on_nmt(self, data: bytes) -> None:
-        if len(data) < 2 or data[1] not in (0, self.node_id):
-            return
-        cs = data[0]
-        if cs == 0x01 and self.nmt_state != NmtState.INITIALISING:
-            self._set_nmt(NmtState.OPERATIONAL)
-        elif cs == 0x02:
-            self._set_nmt(NmtState.STOPPED)
-        elif cs == 0x80:
-            self._set_nmt(NmtState.PRE_OPERATIONAL)
-        elif cs == 0x81:
-            self._nmt_reset(application=True)
-        elif cs == 0x82:
-            self._nmt_reset(application=False)
-
-    def _set_nmt(self, state: NmtState) -> None:
-        if state == self.nmt_state:
-            return
-        self.nmt_state = state
-        now = self._clock()
-        for pdo in self._tpdo:
-            pdo.sync_count = 0
-            pdo.next_event = now
-        for pdo in self._rpdo:
-            pdo.pending = None
-
-    def _nmt_reset(self, *, application: bool) -> None:
-        """Reset node (application + communication) or reset communication, then boot-up."""
-        self.nmt_state = NmtState.INITIALISING
-        for (index, sub), var in self._defaults().items():
-            if application or 0x1000 <= index <= 0x1FFF:
-                self._store[(index, sub)] = var
-        if application:
-            self._reset_application()
-        self._err_history.clear()
-        self._rebuild_comm()
-        self._tx(0x700 + self.node_id, b'\x00')          # boot-up
-        self._set_nmt(NmtState.PRE_OPERATIONAL)
-        now = self._clock()
-        self._next_hb = now + self.hb_period_s if self.hb_period_s > 0 else math.inf
-
-    def _defaults(self) -> dict[tuple[int, int], int]:
-        out: dict[tuple[int, int], int] = {}
-        for obj in self.od.values():
-            subs = [obj] if isinstance(obj, odmod.ODVariable) else list(obj.values())
-            for var in subs:
-                val = var.value if var.value is not None else var.default
-                if isinstance(val, (int, bool)):
-                    out[(var.index, var.subindex)] = int(val)
-                elif isinstance(val, (str, bytes)):
-                    out[(var.index, var.subindex)] = val   # type: ignore[assignment]
-        return out
+    def _firmware(self) -> dict[tuple[int, int], int]:
+        """The drive's own settings of the CiA 402 parameters its dictionary does not show
+        (they cannot be read or written, but the firmware has them): quick stop option 2
+        (ramp, then SWITCH ON DISABLED), abort connection option 1 (fault), following-error
+        monitoring off (6065h = FFFFFFFFh), no software limits, no home offset, the
+        actuator's own speed and ramps."""
+        acc = round(self.limits.max_acceleration * self._cpm)
+        return {(0x6007, 0): 1, (0x605A, 0): 2, (0x6065, 0): 0xFFFFFFFF, (0x6066, 0): 0,
+                (0x607F, 0): 0xFFFFFFFF, (0x6083, 0): acc, (0x6084, 0): acc, (0x6085, 0): acc,
+                (0x607D, 1): 0, (0x607D, 2): 0, (0x607C, 0): 0, (0x6098, 0): 0, (0x60B1, 0): 0,
+                (0x6060, 0): 0, (0x6061, 0): 0, (0x1014, 0): 0x80 + self.node_id}
 
     def _reset_application(self) -> None:
         """Power-up of the drive application: encoder counts restart at 0, not homed."""
         if not self._store:
             self._store.update(self._defaults())
-        self._store.setdefault((0x6061, 0), 0)
+        for key, value in self._firmware().items():
+            if self.dictionary.var(ObjectRef(*key)) is None:
+                self._store.setdefault(key, value)
         self._store[(0x6061, 0)] = self._store.get((0x6060, 0), 0)
         self._enc_zero = math.floor(self.length_m * self._cpm)
         self._home_shift = 0
@@ -583,81 +332,25 @@ class SimulatedDrive:
         # NOT READY TO SWITCH ON -> SWITCH ON DISABLED (transition 1, automatic)
         self.state = State402.SWITCH_ON_DISABLED
 
-    def _rebuild_comm(self) -> None:
-        """Apply the communication objects of the store (after reset or SDO writes)."""
-        s = self._store
-        self.sync_cob_id = s.get((0x1005, 0), 0x80) & 0x7FF
-        hb_ms = s.get((0x1017, 0), 0)
-        self.hb_period_s = hb_ms / 1000.0
-        cons = s.get((0x1016, 1), 0)
-        self._hb_consumer_id = (cons >> 16) & 0x7F
-        self._hb_consumer_s = (cons & 0xFFFF) / 1000.0
-        if self._hb_consumer_s <= 0 or self._hb_consumer_id == 0:
-            self._hb_deadline = math.inf
-        for pdo in self._rpdo:
-            self._compile_pdo(pdo, 0x1400, 0x1600)
-        for pdo in self._tpdo:
-            self._compile_pdo(pdo, 0x1800, 0x1A00)
-        self._rpdo_by_cob = {p.cob_id: p for p in self._rpdo if p.valid}
-
-    def _compile_pdo(self, pdo: _Pdo, com_base: int, map_base: int) -> None:
-        s = self._store
-        n = pdo.num - 1
-        cob = s.get((com_base + n, 1), 0x80000000)
-        pdo.cob_id = cob & 0x7FF
-        pdo.valid = not cob & 0x80000000
-        pdo.trans_type = s.get((com_base + n, 2), 255)
-        pdo.event_ms = s.get((com_base + n, 5), 0)
-        count = s.get((map_base + n, 0), 0)
-        entries, fmt = [], '<'
-        for i in range(1, count + 1):
-            raw = s.get((map_base + n, i), 0)
-            index, sub = raw >> 16, (raw >> 8) & 0xFF        # low byte: the bit length
-            var = self._var(index, sub)
-            entries.append((index, sub))
-            fmt += _STRUCT_CODE[var.data_type]
-        pdo.entries = entries
-        pdo.codec = struct.Struct(fmt)
-        pdo.getters = tuple(self._getter(index, sub) for index, sub in entries)
-        pdo.pending = None
-
     def _getter(self, index: int, sub: int) -> Callable[[], int]:
         """A zero-argument reader of a mapped object, equal to ``self._get(index, sub)`` at
-        every call: the TPDO1 process data (statusword, position actual, load cell) read
-        directly, every other object through :meth:`_get`."""
+        every call: the feedback TPDO's process data (statusword, position actual, load cell)
+        read directly, every other object through :meth:`_get`."""
         cls = type(self)
         if index == 0x6041:
             return functools.partial(cls.statusword.fget, self)
         if index == 0x6064:
             return functools.partial(cls.position_counts.fget, self)
-        if index == 0x2401:
+        if (index, sub) == self.load_cell:
             return functools.partial(getattr, self, 'load_cell_counts')
         return functools.partial(self._get, index, sub)
 
-    def _var(self, index: int, sub: int) -> odmod.ODVariable:
-        if index not in self.od:
-            raise SdoAbortedError(SdoAbortCode.NO_OBJECT)
-        obj = self.od[index]
-        if isinstance(obj, odmod.ODVariable):
-            if sub != 0:
-                raise SdoAbortedError(SdoAbortCode.NO_SUBINDEX)
-            return obj
-        if sub not in obj:
-            raise SdoAbortedError(SdoAbortCode.NO_SUBINDEX)
-        return obj[sub]
+    def _rebuild_comm(self) -> None:
+        super()._rebuild_comm()
+        self._ff_mapped = self.mapped(0x60B1, 0)
 
-    # ------------------------------------------------------------------ PDO codec
-
-    def _pack_tpdo(self, pdo: _Pdo) -> bytes:
-        return pdo.codec.pack(*[get() for get in pdo.getters])
-
-    def _apply_rpdo(self, pdo: _Pdo, data: bytes) -> None:
-        values = pdo.codec.unpack_from(data)
-        for (index, sub), value in zip(pdo.entries, values):
-            try:
-                self._put(index, sub, value)
-            except SdoAbortedError:
-                pass  # an invalid value in a PDO is ignored (no SDO to abort)
+    def _fault_codes(self) -> set[int]:
+        return self._faults
 
     # ------------------------------------------------------------------ object access
 
@@ -667,29 +360,23 @@ class SimulatedDrive:
             return self.statusword
         if index == 0x6064:
             return self.position_counts
+        if (index, sub) == self.load_cell:
+            return self.load_cell_counts
         if index == 0x6062:
             return self._length_to_counts(self._demand_m)
-        if index == 0x2401:
-            return self.load_cell_counts
         if index == 0x606C:
             return round(self.velocity_mps * self._cpm)
         if index == 0x60F4:
             return self._fe_counts
         if index == 0x6077:
             return max(-32768, min(32767, round(1000.0 * self.force_n / self.limits.max_force)))
-        if index == 0x1001:
-            return self._error_register()
         if index == 0x603F:
             return self._error_code
         if index == 0x6040:
             return self._controlword
         if index == 0x607A:
             return self._target
-        if index == 0x1003:
-            if sub == 0:
-                return len(self._err_history)
-            return self._err_history[sub - 1] if sub <= len(self._err_history) else 0
-        return self._store[(index, sub)]
+        return super()._get(index, sub)
 
     def _put(self, index: int, sub: int, value: int) -> None:
         """Write an object (SDO or RPDO) with its side effects; SdoAbortedError if refused."""
@@ -700,7 +387,7 @@ class SimulatedDrive:
             self._target = value
             return
         if index == 0x6060:
-            if value not in (MODE_CSP, MODE_HOMING):
+            if value not in self.modes:          # 6502h: the modes this drive has
                 raise SdoAbortedError(SdoAbortCode.VALUE_RANGE)
             self._store[(0x6060, 0)] = value
             if self._store[(0x6061, 0)] != value:
@@ -711,73 +398,19 @@ class SimulatedDrive:
                 if value == MODE_CSP and self.state == State402.OPERATION_ENABLED:
                     self._hold_actual_position()
             return
-        if index == 0x1003:
-            if sub == 0 and value == 0:
-                self._err_history.clear()
-                return
-            raise SdoAbortedError(SdoAbortCode.VALUE_RANGE)
-        if 0x1600 <= index <= 0x1603 or 0x1A00 <= index <= 0x1A03:
-            self._check_mapping(index, sub, value)
-        if index in (0x1400, 0x1401, 0x1402, 0x1403, 0x1800, 0x1801, 0x1802, 0x1803) and sub == 1:
-            if value & 0x1FFFF800 and not value & 0x20000000:
-                raise SdoAbortedError(SdoAbortCode.VALUE_RANGE)
-        self._store[(index, sub)] = value
-        if 0x1000 <= index <= 0x1FFF:
-            self._rebuild_comm()
-            if index == 0x1017:
-                now = self._clock()
-                self._next_hb = now + self.hb_period_s if self.hb_period_s > 0 else math.inf
-            if index == 0x1016 and self._hb_consumer_s > 0:
-                self._hb_deadline = math.inf   # restarts with the next heartbeat received
-                self.master_heartbeat_lost = False
+        super()._put(index, sub, value)
 
-    def _check_mapping(self, index: int, sub: int, value: int) -> None:
-        """CiA 301 §7.4.8.x: a mapping entry names a mappable object of its length; <= 64 bit."""
-        if sub == 0:
-            if value > 8:
-                raise SdoAbortedError(SdoAbortCode.VALUE_HIGH)
-            bits = 0
-            for i in range(1, value + 1):
-                bits += self._store.get((index, i), 0) & 0xFF
-                self._check_entry(self._store.get((index, i), 0), rpdo=index < 0x1A00)
-            if bits > 64:
-                raise SdoAbortedError(SdoAbortCode.PDO_LENGTH)
-        elif value:
-            self._check_entry(value, rpdo=index < 0x1A00)
+    def _after_sync(self) -> None:
+        if self.state == State402.OPERATION_ENABLED and self._store[(0x6061, 0)] == MODE_CSP:
+            self._start_segment()
 
-    def _check_entry(self, raw: int, *, rpdo: bool) -> None:
-        idx, sub, bits = raw >> 16, (raw >> 8) & 0xFF, raw & 0xFF
-        try:
-            var = self._var(idx, sub)
-        except SdoAbortedError:
-            raise SdoAbortedError(SdoAbortCode.NOT_MAPPABLE) from None
-        if not var.pdo_mappable or var.data_type not in _STRUCT_CODE or len(var) != bits \
-                or (rpdo and not var.writable) or (not rpdo and not var.readable):
-            raise SdoAbortedError(SdoAbortCode.NOT_MAPPABLE)
-
-    # SdoServer's node interface (CiA 301 §7.2.4; bytes in, bytes out)
-    def get_data(self, index: int, subindex: int, check_readable: bool = False) -> bytes:
-        var = self._var(index, subindex)
-        if check_readable and not var.readable:
-            raise SdoAbortedError(SdoAbortCode.READ_WRITE_ONLY)
-        return var.encode_raw(self._get(index, subindex))
-
-    def set_data(self, index: int, subindex: int, data: bytes,
-                 check_writable: bool = False) -> None:
-        var = self._var(index, subindex)
-        if check_writable and not var.writable:
-            raise SdoAbortedError(SdoAbortCode.WRITE_READ_ONLY)
-        if var.data_type in odmod.NUMBER_TYPES and 8 * len(data) != len(var):
-            raise SdoAbortedError(SdoAbortCode.LENGTH_MISMATCH)
-        value = var.decode_raw(bytes(data))
-        if not isinstance(value, int):
-            self._store[(index, subindex)] = value
-            return
-        if var.min is not None and value < var.min:
-            raise SdoAbortedError(SdoAbortCode.VALUE_LOW)
-        if var.max is not None and value > var.max:
-            raise SdoAbortedError(SdoAbortCode.VALUE_HIGH)
-        self._put(index, subindex, int(value))
+    def _timer_step(self, now: float) -> float:
+        # no SYNC for long: the fault reaction still ends (motor stopped)
+        if self.state == State402.FAULT_REACTION_ACTIVE and self._last_sync_t is not None \
+                and now - self._last_sync_t > 0.05:
+            self.velocity_mps = 0.0
+            self._set_state(State402.FAULT)
+        return math.inf
 
     # ------------------------------------------------------------------ CiA 402 device control
 
@@ -907,13 +540,6 @@ class SimulatedDrive:
                 self._set_state(State402.FAULT)
         self._emcy(code, data)
 
-    def host_stalled(self, seconds: float) -> None:
-        """The host process did not run for ``seconds``: this drive's clock stood still, so
-        its heartbeat-consumer deadline (1016h) moves by as much (:mod:`brace_control.sim.host`)."""
-        with self.lock:
-            if self._hb_deadline != math.inf:
-                self._hb_deadline += seconds
-
     def _on_master_heartbeat_lost(self) -> None:
         """CiA 301 heartbeat event + CiA 402 6007h abort connection option code."""
         self.master_heartbeat_lost = True
@@ -960,13 +586,23 @@ class SimulatedDrive:
     def _start_segment(self) -> None:
         """SYNC in CSP: the reference runs from the previous target and velocity offset to
         the ones just latched (607Ah, 60B1h), linearly over the interpolation period 60C2h
-        (``value x 10^index`` s; 0 s: the reference steps to the target)."""
+        (``value x 10^index`` s; 0 s: the reference steps to the target; a drive without
+        60C2h: the SYNC interval). A drive whose RPDOs do not carry 60B1h feeds its loop
+        forward from the reference's own slope (servo drives' internal velocity feed-forward)."""
         self._seg_from_m = self._seg_to_m
-        self._vff_from = self._vff_to
         self._seg_to_m = self._counts_to_length(self._target)
-        self._vff_to = self._store[(0x60B1, 0)] / self._cpm
         self._seg_t = 0.0
-        self._seg_period_s = self._store[(0x60C2, 1)] * 10.0 ** self._store[(0x60C2, 2)]
+        if (0x60C2, 1) in self._store:
+            self._seg_period_s = self._store[(0x60C2, 1)] * 10.0 ** self._store[(0x60C2, 2)]
+        else:
+            self._seg_period_s = self._sync_dt
+        if self._ff_mapped:
+            self._vff_from = self._vff_to
+            self._vff_to = self._store[(0x60B1, 0)] / self._cpm
+        else:
+            period = self._seg_period_s
+            slope = (self._seg_to_m - self._seg_from_m) / period if period > 0.0 else 0.0
+            self._vff_from = self._vff_to = slope
 
     def _csp_step(self, dt: float) -> None:
         """Advance the actuator ``dt`` seconds under the CSP position loop.
@@ -1077,6 +713,7 @@ class SimulatedDrive:
         self._last_sync_t = self._clock()
         if dt <= 0.0:
             return
+        self._sync_dt = dt
         st = self.state
         csp = st == State402.OPERATION_ENABLED and self._store[(0x6061, 0)] == MODE_CSP
         if csp:

@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Any
 import can
 
 from ..can.cia402 import EmcyCode
+from .device import SimulatedDevice
 from .drive import SimulatedDrive
 
 if TYPE_CHECKING:
@@ -109,6 +110,26 @@ class FaultInjector:
     def mute_tpdo(self, node_id: int, muted: bool = True) -> None:
         """Stop this drive's TPDOs (stale position and load cell at the master)."""
         self._d(node_id).tpdo_muted = muted
+
+    # ---- field quirks of real drives (boot)
+    def delay_sdo(self, node_id: int, seconds: float) -> None:
+        """Every SDO answer of this node comes ``seconds`` late (a drive busy while it is
+        configured: ros2_canopen#194); 0 undoes."""
+        self._device(node_id).sdo_delay = max(0.0, float(seconds))
+
+    def silent_boot(self, node_id: int, when: str = 'power_on') -> None:
+        """This node sends no boot-up message: ``'power_on'`` only at power-on (it answers an
+        NMT reset with one: ros2_canopen#199), ``'always'`` never (it still answers SDO),
+        ``''`` undoes. Set before the brace starts (``SimulatedBrace(..., start=False)``)."""
+        if when not in ('', 'power_on', 'always'):
+            raise ValueError(f"silent_boot when = {when!r}: expected '', 'power_on' or 'always'")
+        self._device(node_id).silent_boot = when
+
+    def _device(self, node_id: int) -> SimulatedDevice:
+        for d in self._brace.host.drives:
+            if d.node_id == node_id:
+                return d
+        raise KeyError(f'no simulated node with id {node_id}')
 
     # ---- EMCY / drive faults
     def send_emcy(self, node_id: int, code: int = EmcyCode.GENERIC, data: bytes = b'', *,
@@ -202,4 +223,6 @@ class FaultInjector:
                 d.encoder_frozen_at = None
                 d.encoder_jump_counts = 0
             d.clear_injected_fault()
+        for dev in self._brace.host.drives:
+            dev.sdo_delay = 0.0
         self._brace.load_cell_override[:] = [None] * len(self._brace.node_ids)

@@ -39,6 +39,7 @@ from typing import Any
 import can
 
 from ..can.frame import Frame
+from .device import SimulatedDevice
 from .drive import SimulatedDrive
 
 __all__ = ['SimBus', 'SyncHandler']
@@ -74,7 +75,7 @@ class SimBus:
             raise ValueError(f"dt_source must be '1006h' or 'measured', got {dt_source!r}")
         self.channel = channel
         self.interface = interface
-        self.drives: list[SimulatedDrive] = []
+        self.drives: list[SimulatedDevice] = []         # every simulated node (drives, I/O modules)
         self.sync_handler = sync_handler
         self.dt_source = dt_source
         self._bus_kwargs = bus_kwargs

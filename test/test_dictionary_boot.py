@@ -1,0 +1,462 @@
+"""The boot planned against drives' own dictionaries, and the simulated drives answering as them.
+
+Issue 23: the vendors' EDS files in ``test/data/eds/`` (provenance in its README). The
+oracle is the dictionary file as ``canopen.import_od`` reads it, looked up here by hand
+(never through our planner or :class:`~brace_control.can.dictionary.Dictionary`), the CiA
+301 abort codes, and the simulator's ground truth; never the plan itself.
+"""
+from __future__ import annotations
+
+import configparser
+import copy
+import itertools
+import os
+import struct
+import time
+from pathlib import Path
+
+import can
+import canopen
+import numpy as np
+import pytest
+from canopen import objectdictionary as od
+
+from brace_control.can import (ActuatorTrajectory, BraceMaster, DriverInitializationError,
+                               MasterConfig)
+from brace_control.can.plan import DictionaryError
+from brace_control.config import ConfigError, DeviceConfig, load_device_config
+from brace_control.mechanisms import mechanism_from_config
+from brace_control.sim import SimulatedBrace
+from brace_control.sim.drive import DriveLimits, SimulatedDrive
+from brace_control.sim.host import SimBus
+
+ROOT = Path(__file__).resolve().parents[1]
+EDS = ROOT / 'test' / 'data' / 'eds'
+NANOTEC = EDS / 'CL3-E-2-0F.eds'
+SLAVE = EDS / 'cia402_slave.eds'
+FAULHABER = EDS / '605.3150.69-B-EK-2-60.eds'
+MODULE = ROOT / 'config' / 'analog_input_module.eds'
+BASE = load_device_config(ROOT / 'config' / 'lumbar_brace.yaml')
+MECH = mechanism_from_config(BASE)
+_ids = itertools.count()
+
+# the abort codes of CiA 301 table 22
+NO_OBJECT, READ_ONLY, NOT_MAPPABLE, PDO_LENGTH = 0x06020000, 0x06010002, 0x06040041, 0x06040042
+VALUE_RANGE, VALUE_HIGH = 0x06090030, 0x06090031
+_STRUCT_BITS = {'B': 8, 'b': 8, 'H': 16, 'h': 16, 'I': 32, 'i': 32, 'f': 32, 'q': 64, 'Q': 64, 'd': 64}
+
+
+def config(**can_params) -> DeviceConfig:
+    """The lumbar brace with ``can.*`` replaced (the YAML's own directory kept)."""
+    params = copy.deepcopy(dict(BASE))
+    params['can'].update(can_params)
+    return DeviceConfig(params, BASE.path)
+
+
+def master_for(cfg: DeviceConfig, channel: str = 'unused') -> BraceMaster:
+    return BraceMaster(MasterConfig.from_device_config(cfg, channel=channel))
+
+
+def raw_var(dictionary: canopen.ObjectDictionary, index: int, sub: int):
+    """The file's variable, looked up by hand (an array lists only the sub-indices it has)."""
+    if index not in dictionary:
+        return None
+    obj = dictionary[index]
+    if isinstance(obj, od.ODVariable):
+        return obj if sub == 0 else None
+    return obj.subindices.get(sub)
+
+
+def edited_eds(tmp_path: Path, src: Path, *, drop: tuple[str, ...] = (),
+               set_: dict[tuple[str, str], str] | None = None, add: dict[str, dict] | None = None) -> Path:
+    """A copy of ``src`` with sections dropped (by name prefix), values set, sections added."""
+    cp = configparser.RawConfigParser()
+    cp.optionxform = str
+    cp.read(src, encoding='latin-1')
+    for section in list(cp.sections()):
+        if any(section.upper().startswith(d.upper()) for d in drop):
+            cp.remove_section(section)
+    for (section, key), value in (set_ or {}).items():
+        cp.set(section, key, value)
+    for section, values in (add or {}).items():
+        cp.add_section(section)
+        for k, v in values.items():
+            cp.set(section, k, v)
+    out = tmp_path / f'edited{next(_ids)}_{src.name}'
+    with open(out, 'w', encoding='latin-1') as f:
+        cp.write(f)
+    return out
+
+
+# ------------------------------------------------------------------ the plan against the file
+
+PLANNED = {
+    'nanotec': dict(eds=str(NANOTEC), load_cell_object='0x3220:1'),
+    'cia402_slave + CiA 401 module': dict(eds=str(SLAVE), load_cell_node={'node_id': 10, 'eds': str(MODULE)}),
+    'our own drive': dict(eds='lumbar_drive.eds'),
+}
+
+
+@pytest.mark.parametrize('case', sorted(PLANNED))
+def test_every_write_of_the_plan_is_one_the_dictionary_file_accepts(case):
+    """Replay every SDO write of the boot against the file (the issue's own check): the object
+    exists, is writable, has the size written; a mapping entry names an object with
+    ``PDOMapping=1`` of the entry's size; no PDO longer than 64 bits."""
+    cfg = config(**PLANNED[case])
+    master = master_for(cfg)
+    plans = master.plan()
+    targets = [(p.node_id, p.dictionary.path, p.writes + p.mapping) for p in plans]
+    if master.module_plan is not None:
+        mp = master.module_plan
+        targets.append((mp.node_id, mp.dictionary.path, mp.writes + mp.mapping))
+    for node_id, path, writes in targets:
+        dictionary = canopen.import_od(str(path), node_id)
+        counts: dict[int, list[int]] = {}
+        for w in writes:
+            var = raw_var(dictionary, w.index, w.subindex)
+            assert var is not None, f'{path.name}: {w.index:04X}h:{w.subindex} ({w.what}) is not in the file'
+            assert 'w' in var.access_type, f'{path.name}: {w.index:04X}h:{w.subindex} is {var.access_type}'
+            assert _STRUCT_BITS[w.fmt] == len(var), (w, len(var))
+            if (0x1600 <= w.index <= 0x17FF or 0x1A00 <= w.index <= 0x1BFF) and w.subindex and w.value:
+                mapped = raw_var(dictionary, w.value >> 16, (w.value >> 8) & 0xFF)
+                assert mapped is not None and mapped.pdo_mappable, f'{path.name}: {w.value:08X}h not mappable'
+                assert len(mapped) == w.value & 0xFF
+                counts.setdefault(w.index, []).append(w.value & 0xFF)
+        for index, bits in counts.items():
+            assert sum(bits) <= 64, (index, bits)
+
+
+def test_nanotec_boots_with_the_load_cell_on_analog_input_3220h_1():
+    master = master_for(config(**PLANNED['nanotec']))
+    plan = master.plan()[0]
+    raw = canopen.import_od(str(NANOTEC), 1)
+    analog = raw_var(raw, 0x3220, 1)
+    assert analog.data_type == od.INTEGER16 and analog.pdo_mappable
+    tpdo1 = [w.value for w in plan.mapping if w.index == 0x1A00 and w.subindex > 0]
+    assert tpdo1 == [0x60410010, 0x60640020, 0x32200110]
+    assert plan.feedforward and plan.home_offset_on_drive
+    assert raw_var(raw, 0x2401, 0) is None
+
+
+def test_ros2_canopen_slave_boots_without_feed_forward_and_says_so():
+    master = master_for(config(**PLANNED['cia402_slave + CiA 401 module']))
+    plans = master.plan()
+    raw = canopen.import_od(str(SLAVE), 1)
+    assert not raw_var(raw, 0x60B1, 0).pdo_mappable               # the file's own word
+    assert all(not p.feedforward for p in plans)
+    assert not any(w.index == 0x1601 and w.subindex and w.value >> 16 == 0x60B1
+                   for p in plans for w in p.mapping)
+    report = '\n'.join(master.boot_report)
+    for absent in ('6007h', '1006h', '607Fh'):
+        assert raw_var(raw, int(absent[:4], 16), 0) is None
+        assert absent in report, report
+    assert '60B1h' in report and 'feed-forward' in report, report
+    # the module carries the load cells: its TPDO1 maps 6401h:1..3
+    module_tpdo = [w.value for w in master.module_plan.mapping if w.index == 0x1A00 and w.subindex > 0]
+    assert module_tpdo == [0x64010110, 0x64010210, 0x64010310]
+
+
+def test_the_ros2_canopen_slave_alone_is_refused_naming_its_missing_load_cell():
+    with pytest.raises(DictionaryError) as err:
+        master_for(config(eds=str(SLAVE))).plan()
+    text = str(err.value)
+    assert '2401h:0' in text and 'can.load_cell_node' in text and 'cia402_slave.eds' in text, text
+
+
+def test_faulhaber_is_refused_naming_csp_and_every_missing_object():
+    raw = canopen.import_od(str(FAULHABER), 1)
+    modes = raw_var(raw, 0x6502, 0).default
+    assert not modes >> 7 & 1                                      # no CSP, by the file
+    missing = [i for i in (0x60B1, 0x60C2, 0x6007, 0x605A, 0x6065, 0x1006) if i not in raw]
+    assert len(missing) == 6
+    with pytest.raises(DictionaryError) as err:
+        master_for(config(eds=str(FAULHABER))).plan()
+    text = str(err.value)
+    assert 'cyclic synchronous position' in text and '6502h' in text, text
+    assert '605.3150.69-B-EK-2-60.eds' in text and 'a1 (node 1), a2 (node 2), a3 (node 3)' in text
+    for index in missing:
+        assert f'{index:04X}h' in text, (f'{index:04X}h', text)
+    assert text.count('cannot drive the brace') == 1              # one message, not one per drive
+
+
+class _Frames(can.Listener):
+    def __init__(self) -> None:
+        self.frames: list[can.Message] = []
+
+    def on_message_received(self, msg: can.Message) -> None:
+        self.frames.append(msg)
+
+
+def test_faulhaber_configure_fails_within_5_s_and_nothing_is_sent_nothing_moves():
+    channel = f'dict-{os.getpid()}-{next(_ids)}'
+    cfg = config(eds=str(FAULHABER))
+    sim = SimulatedBrace(cfg, channel=channel)
+    spy_bus = can.Bus(interface='virtual', channel=channel)
+    spy = _Frames()
+    notifier = can.Notifier(spy_bus, [spy])
+    before = sim.truth().lengths.copy()
+    master = master_for(cfg, channel)
+    try:
+        t0 = time.perf_counter()
+        with pytest.raises(DictionaryError):
+            master.boot()
+        assert time.perf_counter() - t0 <= 5.0
+        time.sleep(0.05)
+        master_frames = [m for m in spy.frames if m.arbitration_id == 0 or 0x600 <= m.arbitration_id <= 0x67F
+                         or m.arbitration_id in (0x80, 0x77F) or 0x200 <= m.arbitration_id <= 0x57F]
+        assert master_frames == [], master_frames[:5]
+        np.testing.assert_array_equal(sim.truth().lengths, before)
+    finally:
+        master.shutdown()
+        notifier.stop()
+        spy_bus.shutdown()
+        sim.shutdown()
+
+
+def test_a_drive_without_1016h_boots_with_a_warning_that_a_hardware_stop_is_needed(tmp_path):
+    eds = edited_eds(tmp_path, NANOTEC, drop=('1016',))
+    master = master_for(config(eds=str(eds), load_cell_object='0x3220:1'))
+    plans = master.plan()
+    assert all(any('1016h' in w and 'hardware stop' in w for w in p.warnings) for p in plans)
+    assert any(line.startswith('warning: a1, a2, a3') and '1016h' in line for line in master.boot_report)
+    assert all(w.index != 0x1016 for p in plans for w in p.writes)
+
+
+def test_homing_method_is_checked_against_what_the_dictionary_offers(tmp_path):
+    # 60E3h (supported homing methods) listing 1, 2 and 37: method 35 is refused, 37 suggested
+    add = {'60E3': {'ParameterName': 'Supported homing methods', 'ObjectType': '0x8', 'SubNumber': '4'},
+           '60E3sub0': {'ParameterName': 'n', 'ObjectType': '0x7', 'DataType': '0x0005', 'AccessType': 'ro',
+                        'DefaultValue': '3', 'PDOMapping': '0'}}
+    for sub, method in ((1, 1), (2, 2), (3, 37)):
+        add[f'60E3sub{sub}'] = {'ParameterName': f'm{sub}', 'ObjectType': '0x7', 'DataType': '0x0002',
+                                'AccessType': 'ro', 'DefaultValue': str(method), 'PDOMapping': '0'}
+    eds = edited_eds(tmp_path, NANOTEC, add=add)
+    with pytest.raises(DictionaryError, match=r'homing method 35.*60E3h lists \[1, 2, 37\].*method 37'):
+        master_for(config(eds=str(eds), load_cell_object='0x3220:1')).plan()
+    plan = master_for(config(eds=str(eds), load_cell_object='0x3220:1', homing_method=37)).plan()[0]
+    assert any(w.index == 0x6098 and w.value == 37 for w in plan.writes)
+
+
+# ------------------------------------------------------------------ PDO mapping from the YAML
+
+def test_a_yaml_mapping_is_planned_on_the_pdo_it_names():
+    cfg = config(eds=str(NANOTEC), load_cell_object='0x3220:1',
+                 tpdo={'2': {'mapping': ['0x6041:0', '0x6064:0', '0x3220:1'], 'transmission': 1}})
+    plan = master_for(cfg).plan()[0]
+    assert plan.feedback.number == 2 and plan.feedback.cob_id == 0x281
+    seq = [(w.index, w.subindex, w.value) for w in plan.mapping]
+    # CiA 301 order on TPDO2, and TPDO1 disabled (the drive has 8 TPDOs: all others disabled)
+    tpdo2 = [s for s in seq if s[0] in (0x1801, 0x1A01)]
+    assert tpdo2[:2] == [(0x1801, 1, 0x80000281), (0x1A01, 0, 0)]
+    assert tpdo2[-1] == (0x1801, 1, 0x281)
+    assert (0x1800, 1, 0x80000181) in seq
+    raw = canopen.import_od(str(NANOTEC), 1)
+    tpdos = {0x1800 + n for n in range(512) if 0x1800 + n in raw}
+    assert len(tpdos) == 8
+    # every TPDO the drive has is written invalid (TPDO2 first, for its mapping), none beyond
+    disabled = {s[0] for s in seq if s[1] == 1 and s[2] & 0x80000000 and s[0] >= 0x1800}
+    assert disabled == tpdos
+
+
+@pytest.mark.parametrize('mapping, expected', [
+    ({'rpdo': {'2': {'mapping': ['0x60B1:0']}}}, r'60B1h:0 \(can.rpdo.2.mapping\): not PDO-mappable'),
+    ({'rpdo': {'5': {'mapping': ['0x607A:0']}}}, r'RPDO5 \(can.rpdo.5\): the drive has RPDOs 1, 2, 3, 4'),
+    ({'tpdo': {'1': {'mapping': ['0x6064:0', '0x6064:0', '0x6064:0']}}}, r'96 bits mapped, a PDO holds at most 64'),
+    ({'tpdo': {'1': {'mapping': ['0x6041:0', '0x6062:0']}}}, r'carries the statusword but not the position'),
+    ({'rpdo': {'1': {'mapping': ['0x6040:0', '0x607A:0', '0x6071:0']}}}, r'6071h:0.*absent'),
+])
+def test_a_yaml_mapping_the_dictionary_refuses_is_named(mapping, expected):
+    cfg = config(eds=str(SLAVE), load_cell_node={'node_id': 10, 'eds': str(MODULE)}, **mapping)
+    with pytest.raises(DictionaryError, match=expected):
+        master_for(cfg).plan()
+
+
+def test_object_references_in_the_yaml_are_read_or_named():
+    with pytest.raises(ConfigError, match=r'can.load_cell_object.*"0xIIII:SS"'):
+        MasterConfig.from_device_config(config(load_cell_object='analog one'), channel='x')
+    with pytest.raises(ConfigError, match=r'can.eds .*no such file'):
+        MasterConfig.from_device_config(config(eds='no_such_drive.eds'), channel='x')
+
+
+# ------------------------------------------------------------------ the simulated drive answers as the file says
+
+@pytest.fixture
+def bus_drive():
+    """One simulated drive from a given EDS on a bus, and a canopen client node for it."""
+    made = []
+
+    def make(eds: Path, node_id: int = 1):
+        channel = f'dict-{os.getpid()}-{next(_ids)}'
+        host = SimBus(channel)
+        drive = SimulatedDrive(node_id, eds, limits=DriveLimits(), initial_length_m=0.39)
+        host.add(drive)
+        host.start()
+        net = canopen.Network()
+        net.connect(interface='virtual', channel=channel)
+        node = canopen.RemoteNode(node_id, canopen.ObjectDictionary())
+        net.add_node(node)
+        made.append((host, net))
+        return drive, node
+    yield make
+    for host, net in made:
+        net.disconnect()
+        host.shutdown()
+
+
+def _abort(node, index, sub, data=None):
+    try:
+        if data is None:
+            node.sdo.upload(index, sub)
+        else:
+            node.sdo.download(index, sub, data)
+    except canopen.SdoAbortedError as exc:
+        return exc.code
+    return None
+
+
+def test_simulated_drives_abort_as_cia_301_says_for_their_own_dictionary(bus_drive):
+    raw = canopen.import_od(str(NANOTEC), 1)
+    drive, node = bus_drive(NANOTEC)
+    assert raw_var(raw, 0x2401, 0) is None and raw_var(raw, 0x6007, 0).pdo_mappable is False
+    assert _abort(node, 0x2401, 0) == NO_OBJECT                           # absent
+    assert _abort(node, 0x6041, 0, struct.pack('<H', 0)) == READ_ONLY     # ro
+    assert _abort(node, 0x1A00, 1, struct.pack('<I', 0x60070010)) == NOT_MAPPABLE
+    for sub in (1, 2, 3):                                                  # 3 x 32 bit
+        assert _abort(node, 0x1A00, sub, struct.pack('<I', 0x60640020)) is None
+    assert _abort(node, 0x1A00, 0, struct.pack('<B', 3)) == PDO_LENGTH
+    assert _abort(node, 0x3220, 1) is None                                 # its analog input exists
+    raw_slave = canopen.import_od(str(SLAVE), 1)
+    slave, snode = bus_drive(SLAVE)
+    assert 0x1404 not in raw_slave and 0x1A04 not in raw_slave
+    assert _abort(snode, 0x1404, 1, struct.pack('<I', 0x80000000)) == NO_OBJECT   # no RPDO5
+    assert _abort(snode, 0x1601, 1, struct.pack('<I', 0x60B10020)) == NOT_MAPPABLE
+    # modes of operation from 6502h (A5h: PP, PV, homing, CSP)
+    assert raw_var(raw_slave, 0x6502, 0).default == 0xA5
+    assert _abort(snode, 0x6060, 0, struct.pack('<b', 9)) == VALUE_RANGE          # CSV: not offered
+    assert _abort(snode, 0x6060, 0, struct.pack('<b', 8)) is None
+
+
+def test_faulhaber_simulated_refuses_csp(bus_drive):
+    raw = canopen.import_od(str(FAULHABER), 1)
+    assert raw_var(raw, 0x6060, 0).max == 6
+    drive, node = bus_drive(FAULHABER)
+    assert _abort(node, 0x6060, 0, struct.pack('<b', 8)) == VALUE_HIGH          # the file's HighLimit
+
+
+# ------------------------------------------------------------------ boot robustness on the simulated bus
+
+def _rig(cfg: DeviceConfig, *, before_start=None):
+    channel = f'dict-{os.getpid()}-{next(_ids)}'
+    sim = SimulatedBrace(cfg, channel=channel, start=before_start is None)
+    if before_start is not None:
+        before_start(sim)
+        sim.start()
+    return sim, master_for(cfg, channel), channel
+
+
+def _move_and_check(sim, master):
+    """Home, enable, a 6 mm lift: the simulator's true lengths end at the IK of the goal."""
+    master.home()
+    master.enable()
+    q0 = MECH.inverse(MECH.home_pose)
+    q1 = MECH.inverse(MECH.home_pose + np.array([0.0, 0.006, 0.01]))
+    t = np.linspace(0.0, 0.8, 33)
+    s = t / 0.8
+    p, v = 10 * s ** 3 - 15 * s ** 4 + 6 * s ** 5, (30 * s ** 2 - 60 * s ** 3 + 30 * s ** 4) / 0.8
+    a = (60 * s - 180 * s ** 2 + 120 * s ** 3) / 0.64
+    assert master.execute(ActuatorTrajectory(t, q0 + np.outer(p, q1 - q0), np.outer(v, q1 - q0),
+                                             np.outer(a, q1 - q0)), start=time.perf_counter() + 0.05,
+                          tag=3) is None
+    end = time.monotonic() + 5
+    while (master.moving or np.max(np.abs(sim.truth().lengths - q1)) > 2e-6) and time.monotonic() < end:
+        time.sleep(0.01)
+    assert np.max(np.abs(sim.truth().lengths - q1)) <= 2e-6, sim.truth().lengths - q1
+    assert not master.supervisor.latched, master.supervisor.summary()
+
+
+def test_a_drive_answering_sdo_20_ms_late_boots_with_can_sdo_timeout_raised():
+    def slow(sim):
+        for node_id in (1, 2, 3):
+            sim.faults.delay_sdo(node_id, 0.02)
+    sim, master, _ = _rig(config(**PLANNED['nanotec'], sdo_timeout=0.01, sdo_retries=0), before_start=slow)
+    try:
+        with pytest.raises(DriverInitializationError, match=r'did not answer the SDO write.*can.sdo_timeout = 0.01'):
+            master.boot()
+    finally:
+        master.shutdown()
+        sim.shutdown()
+    sim, master, _ = _rig(config(**PLANNED['nanotec'], sdo_timeout=0.05), before_start=slow)
+    try:
+        master.boot()
+        _move_and_check(sim, master)
+    finally:
+        master.shutdown()
+        sim.shutdown()
+
+
+@pytest.mark.parametrize('when', ['power_on', 'always'])
+def test_a_drive_that_sends_no_boot_up_is_brought_up(when):
+    """'power_on': no boot-up until the master's NMT reset-communication, which it answers with
+    one (seen on the bus after the reset). 'always': none at all; the SDO probe finds it."""
+    spy = _Frames()
+
+    def quiet(sim):
+        for node_id in (1, 2, 3):
+            sim.faults.silent_boot(node_id, when)
+        spy_bus = can.Bus(interface='virtual', channel=sim.channel)
+        quiet.notifier = can.Notifier(spy_bus, [spy])
+        quiet.bus = spy_bus
+    sim, master, _ = _rig(config(**PLANNED['nanotec']), before_start=quiet)   # 1017h = 0 on the CL3-E
+    try:
+        master.boot()
+        frames = [(m.arbitration_id, bytes(m.data)) for m in spy.frames]
+        resets = [i for i, f in enumerate(frames) if f[0] == 0 and f[1][:1] == b'\x82']
+        bootups = [i for i, f in enumerate(frames) if 0x701 <= f[0] <= 0x703 and f[1] == b'\x00']
+        assert {frames[i][1][1] for i in resets} == {1, 2, 3}
+        if when == 'power_on':
+            assert len(bootups) == 3 and min(bootups) > min(resets)
+        else:
+            assert bootups == []
+        _move_and_check(sim, master)
+    finally:
+        master.shutdown()
+        quiet.notifier.stop()
+        quiet.bus.shutdown()
+        sim.shutdown()
+
+
+def test_a_drive_without_607ch_homes_with_the_offset_kept_by_the_master(tmp_path):
+    eds = edited_eds(tmp_path, NANOTEC, drop=('607C',))
+    cfg = config(eds=str(eds), load_cell_object='0x3220:1')
+    sim, master, _ = _rig(cfg)
+    try:
+        master.boot()
+        assert not master.plans[0].home_offset_on_drive
+        assert any('607Ch' in line and 'keeps the home offset' in line for line in master.boot_report)
+        _move_and_check(sim, master)
+        # the drive's own counts are its homing result (no 607Ch: 0 at home), not the length
+        q = sim.truth().lengths
+        assert abs(sim.drive(2).position_counts - round(q[1] * 8192000)) > 1000
+        np.testing.assert_allclose(master.feedback().position, q, atol=2e-7)
+    finally:
+        master.shutdown()
+        sim.shutdown()
+
+
+def test_an_unsigned_analog_input_reads_zero_force_at_mid_scale(tmp_path):
+    """A 16-bit unsigned ADC input of a bipolar load-cell amplifier: 0 N at 32768 counts."""
+    eds = edited_eds(tmp_path, NANOTEC, set_={('3220sub1', 'DataType'): '0x0006'})
+    cfg = config(eds=str(eds), load_cell_object='0x3220:1')
+    sim, master, _ = _rig(cfg)
+    try:
+        master.boot()
+        _move_and_check(sim, master)
+        true = sim.truth().forces
+        assert np.all(np.abs(true) > 2.0)
+        counts = [sim.drive(n).read_od(0x3220, 1) for n in (1, 2, 3)]
+        assert all(0 <= c <= 0xFFFF for c in counts)
+        np.testing.assert_allclose(np.array(counts) - 32768, true / 0.01, atol=4 * 0.05 / 0.01 + 1)
+        np.testing.assert_allclose(master.feedback().force, true, atol=4 * 0.05 + 0.01)
+    finally:
+        master.shutdown()
+        sim.shutdown()
