@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import argparse
 import heapq
+import math
 import importlib
 import shutil
 import signal
@@ -861,6 +862,9 @@ class Recorder:
             raise BagError('record: no topics given (--topics /a /b ...)')
         if self.out.exists():
             raise BagError(f'{str(self.out)!r} exists already; not overwriting')
+        parent = self.out.parent if str(self.out.parent) else Path('.')
+        if not parent.is_dir():
+            raise BagError(f'cannot record to {str(self.out)!r}: directory {str(parent)!r} does not exist')
         self._single_file = self.out.suffix == '.mcap'
         if self._single_file:
             self._tmp = Path(tempfile.mkdtemp(prefix='.brace-bag-', dir=self.out.parent or '.'))
@@ -979,6 +983,10 @@ def _parser() -> argparse.ArgumentParser:
     rp.add_argument('--delay', type=float, default=0.5,
                     help='seconds between creating the publishers and the first message '
                          '(discovery; default 0.5)')
+    rp.add_argument('--wait-goals', type=float, default=None, metavar='S',
+                    help='after the replay, wait up to S s for one outcome on /brace/goal_status '
+                         'per goal replayed (pose_goal, pose_path); exit 1 if one is missing. '
+                         'Without it the replay does not wait for outcomes (and says so)')
     rc = sub.add_parser('record', help='record topics to an mcap bag')
     rc.add_argument('out', help='OUT.mcap (single file) or a bag directory name')
     rc.add_argument('--topics', nargs='+', required=True)
@@ -996,6 +1004,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         argv, ros_args = argv[:i], argv[i:]
     args = _parser().parse_args(argv)
     try:
+        _check_arguments(args)
         if args.command == 'info':
             info = bag_info(args.bag)
             where = (f'{info["storage"]}, metadata version {info["version"]}'
@@ -1019,6 +1028,65 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
 
 
+def _check_arguments(args: argparse.Namespace) -> None:
+    """Numbers of the command line: finite, and not negative (a count, a time).
+
+    :raises BagError: naming the option and the value.
+    """
+    checks = {
+        'replay': (('rate', '--rate', False), ('wait_timeout', '--wait-timeout', True),
+                   ('ack_timeout', '--ack-timeout', True), ('delay', '--delay', True),
+                   ('wait_subscribers', '--wait-for-subscribers', True),
+                   ('wait_goals', '--wait-goals', True)),
+        'record': (('duration', '--duration', False),),
+    }.get(args.command, ())
+    for attr, option, zero_ok in checks:
+        value = getattr(args, attr, None)
+        if value is None:
+            continue
+        if not math.isfinite(value) or value < 0 or (value == 0 and not zero_ok):
+            raise BagError(f'{option} {value}: expected a finite number '
+                           + ('of 0 or more' if zero_ok else 'above 0'))
+
+
+#: topics whose messages are goals: each gets one outcome on /brace/goal_status
+GOAL_TOPICS = ('/brace/pose_goal', '/brace/pose_path')
+_TERMINAL = ('succeeded', 'rejected', 'aborted', 'cancelled')
+
+
+class GoalOutcomes:
+    """The outcomes (``/brace/goal_status``) of goals that arrive while it listens: goal id ->
+    terminal state and reason, for goals whose first event it saw (they are new)."""
+
+    def __init__(self, node: Any) -> None:
+        from diagnostic_msgs.msg import DiagnosticStatus
+        from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+        self._lock = threading.Lock()
+        self.first: dict[str, str] = {}           # goal id -> first state seen
+        self.ended: dict[str, tuple[str, str]] = {}
+        qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
+        self._sub = node.create_subscription(DiagnosticStatus, '/brace/goal_status', self._on, qos)
+
+    def _on(self, msg: Any) -> None:
+        values = {kv.key: kv.value for kv in msg.values}
+        gid, state = values.get('goal_id', msg.name.rsplit('/', 1)[-1]), values.get('state', msg.message)
+        with self._lock:
+            self.first.setdefault(gid, state)
+            if state in _TERMINAL and self.first[gid] in ('accepted', 'rejected'):
+                self.ended.setdefault(gid, (state, values.get('reason', '')))
+
+    def wait(self, count: int, timeout: float, stop: threading.Event | None = None) -> dict[str, tuple[str, str]]:
+        """Until ``count`` goals have ended (or ``timeout``); their outcomes."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end and not (stop is not None and stop.is_set()):
+            with self._lock:
+                if len(self.ended) >= count:
+                    break
+            time.sleep(0.02)
+        with self._lock:
+            return dict(self.ended)
+
+
 def _run_ros(args: argparse.Namespace, ros_args: list[str]) -> int:
     import rclpy
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -1034,6 +1102,13 @@ def _run_ros(args: argparse.Namespace, ros_args: list[str]) -> int:
     signal.signal(signal.SIGINT, _stop)
     try:
         if args.command == 'replay':
+            outcomes, spinner, spin_thread, spun = None, None, None, threading.Event()
+            if args.wait_goals is not None:
+                outcomes = GoalOutcomes(node)
+                spinner = SingleThreadedExecutor()
+                spinner.add_node(node)
+                spin_thread = threading.Thread(target=_spin_until, args=(spinner, spun), daemon=True)
+                spin_thread.start()
             stats = replay(node, args.bag, rate=args.rate, topics=args.topics,
                            wait_subscribers=args.wait_subscribers, wait_topics=args.wait_topics,
                            wait_timeout=args.wait_timeout, delay=args.delay, stop=stop,
@@ -1048,7 +1123,30 @@ def _run_ros(args: argparse.Namespace, ros_args: list[str]) -> int:
                 print(f'brace-bag: warning: {w}', file=sys.stderr)
             for p in stats.problems:
                 print(f'brace-bag: error: {p}', file=sys.stderr)
-            return 0 if stats.ok else 1
+            goals = sum(n for t, n in stats.published.items() if t in GOAL_TOPICS)
+            ok = stats.ok
+            if goals and outcomes is None:
+                print(f'brace-bag: the replay does not wait for the outcomes of the {goals} goal(s) it '
+                      'published: watch /brace/goal_status, or pass --wait-goals S', file=sys.stderr)
+            elif goals:
+                ended = outcomes.wait(goals, args.wait_goals, stop)
+                states: dict[str, int] = {}
+                for state, _ in ended.values():
+                    states[state] = states.get(state, 0) + 1
+                print(f'goal outcomes: {len(ended)} of {goals} goal(s) replayed ended ('
+                      + ', '.join(f'{n} {s}' for s, n in states.items()) + ')', file=sys.stderr)
+                for gid, (state, reason) in sorted(ended.items(), key=lambda kv: int(kv[0]) if kv[0].isdigit() else 0):
+                    if state != 'succeeded':
+                        print(f'  goal {gid}: {state}: {reason}', file=sys.stderr)
+                if len(ended) < goals:
+                    print(f'brace-bag: error: {goals - len(ended)} goal(s) got no outcome on '
+                          f'/brace/goal_status within --wait-goals {args.wait_goals:g} s', file=sys.stderr)
+                    ok = False
+            if spin_thread is not None:
+                spun.set()                        # the spin thread ends before the node goes
+                spin_thread.join(timeout=2.0)
+                spinner.shutdown(timeout_sec=1.0)
+            return 0 if ok else 1
         recorder = Recorder(node, args.out, args.topics).start()
         executor = SingleThreadedExecutor()
         executor.add_node(node)
@@ -1080,6 +1178,14 @@ def _run_ros(args: argparse.Namespace, ros_args: list[str]) -> int:
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
+
+
+def _spin_until(executor: Any, stop: threading.Event) -> None:
+    while not stop.is_set():
+        try:
+            executor.spin_once(timeout_sec=0.05)
+        except Exception:  # noqa: BLE001 - shutting down
+            return
 
 
 if __name__ == '__main__':

@@ -55,6 +55,7 @@ from pathlib import Path
 from typing import Any
 
 from .can.errors import DriverError
+from .checks import check_device
 from .config import ConfigError, load_device_config, resolve_device_file
 from .nodes import topics
 
@@ -82,8 +83,9 @@ def node_class(name: str) -> type:
 
 
 def ros_args(config: Path, *, sim: bool = True, extra: Sequence[str] = ()) -> list[str]:
-    """``--ros-args --params-file <config> [-p can.sim:=false] ...`` for every node."""
-    args = ['--ros-args', '--params-file', str(config)]
+    """``--ros-args --params-file <config> [-p can.sim:=false] ...`` for every node; the
+    parameter file by its absolute path (the files it names are relative to it)."""
+    args = ['--ros-args', '--params-file', str(Path(config).absolute())]
     if not sim:
         args += ['-p', 'can.sim:=false']
     return args + list(extra)
@@ -469,15 +471,26 @@ class ProcessBringUp:
             p for p in (self.env.get('PYTHONPATH', ''), pkg_root) if p)
         self.procs: dict[str, subprocess.Popen] = {}
         self.manual_lifecycle = manual_lifecycle
+        #: the write end of the pipe every node watches: when this process is gone (by any
+        #: signal, SIGKILL included) the nodes read end-of-file and stop, drives disabled
+        #: first (:func:`~.nodes.runner.watch_parent`)
+        self._lifeline: int | None = None
 
     def start(self) -> 'ProcessBringUp':
         from .nodes.can_driver_node import MANUAL_LIFECYCLE
-        for name in self.names:
-            own = [MANUAL_LIFECYCLE] if name == DRIVER and self.manual_lifecycle else []
-            # own session: a terminal Ctrl-C reaches only the bring-up, which disables the
-            # drives before it forwards SIGINT to the nodes
-            self.procs[name] = subprocess.Popen([*find_executable(name), *own, *self.args],
-                                                env=self.env, start_new_session=True)
+        from .nodes.runner import PARENT_FD_ENV
+        read_end, self._lifeline = os.pipe()          # neither end inheritable by default
+        try:
+            env = {**self.env, PARENT_FD_ENV: str(read_end)}
+            for name in self.names:
+                own = [MANUAL_LIFECYCLE] if name == DRIVER and self.manual_lifecycle else []
+                # own session: a terminal Ctrl-C reaches only the bring-up, which disables the
+                # drives before it forwards SIGINT to the nodes
+                self.procs[name] = subprocess.Popen([*find_executable(name), *own, *self.args],
+                                                    env=env, start_new_session=True,
+                                                    pass_fds=(read_end,))
+        finally:
+            os.close(read_end)
         return self
 
     def failed(self) -> dict[str, int]:
@@ -498,6 +511,9 @@ class ProcessBringUp:
             except subprocess.TimeoutExpired:
                 p.kill()
                 codes[name] = p.wait()
+        if self._lifeline is not None:
+            os.close(self._lifeline)
+            self._lifeline = None
         return codes
 
 
@@ -525,16 +541,31 @@ def main(argv: Sequence[str] | None = None) -> int:
         i = argv.index('--ros-args')
         argv, extra = argv[:i], argv[i + 1:]
     args = _parser().parse_args(argv)
+    stop = threading.Event()
+    # Our own handlers, first: on Ctrl-C, SIGTERM, a closed terminal (SIGHUP) or SIGQUIT the
+    # context must stay up until the drives are disabled; a signal during start-up ends it
+    # cleanly too (no KeyboardInterrupt traceback)
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT):
+        signal.signal(sig, lambda *_: stop.set())
+    try:
+        # the whole device file, across its keys, before anything starts (exit 2, no traceback)
+        check_device(load_device_config(resolve_device_file(args.config)))
+    except ConfigError as exc:
+        print(f'brace-bringup: configuration error: {exc}', file=sys.stderr)
+        return 2
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     import rclpy
     from rclpy.signals import SignalHandlerOptions
-
-    stop = threading.Event()
-    # Our own handlers: on Ctrl-C the context must stay up until the drives are disabled.
     rclpy.init(args=['brace-bringup'], signal_handler_options=SignalHandlerOptions.NO)
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
+        running = nodes_already_running(args.nodes, stop, namespace=_namespace(extra))
+        if running:
+            print(f'brace-bringup: {", ".join(running)} already running on ROS_DOMAIN_ID '
+                  f'{os.environ.get("ROS_DOMAIN_ID", "0")} (another brace-bringup?); two drivers '
+                  'would command the same drives. Stop it first (ros2 node list)', file=sys.stderr)
+            return 1
+        if stop.is_set():
+            return 0
         if args.processes:
             return _run_processes(args, extra, stop)
         return _run_in_process(args, extra, stop)
@@ -546,6 +577,64 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     finally:
         rclpy.try_shutdown()
+
+
+#: s the bring-up watches the ROS graph for nodes of its names before it starts its own
+#: (DDS discovery of a running node on this machine: 0.15-0.7 s measured, bench/RESULTS.md)
+GRAPH_WATCH_S = 1.5
+#: s a node found in the graph has to answer before it counts as gone (a killed process's
+#: nodes stay in the graph until their lease runs out)
+ANSWER_S = 2.0
+
+
+def _namespace(ros_args_: Sequence[str]) -> str:
+    """The namespace ``-r __ns:=/ns`` in the extra ``--ros-args`` gives the nodes ('/' if none)."""
+    for a in ros_args_:
+        if a.startswith('__ns:='):
+            ns = a.split(':=', 1)[1]
+            return ns if ns.startswith('/') else '/' + ns
+    return '/'
+
+
+def nodes_already_running(names: Sequence[str], stop: threading.Event | None = None,
+                          watch: float = GRAPH_WATCH_S, namespace: str = '/',
+                          answer_s: float = ANSWER_S) -> list[str]:
+    """The nodes of ``names`` (in ``namespace``) some other process already runs in this ROS
+    domain, watched for ``watch`` s (discovery takes its time); [] when none appeared.
+
+    A node counts only when it answers (``~/list_parameters``, which every rclpy node serves
+    while it spins) within ``answer_s`` of appearing: the graph keeps the nodes of a process
+    that was killed, or just ended, until its participant's lease runs out (Fast DDS: 20 s)."""
+    import rclpy
+    from rcl_interfaces.srv import ListParameters
+    probe = rclpy.create_node(f'brace_bringup_graph_{os.getpid()}')
+    clients: dict[str, Any] = {}
+    seen: dict[str, float] = {}
+    futures: dict[str, Any] = {}
+    try:
+        end = time.monotonic() + watch
+        while not (stop is not None and stop.is_set()):
+            now = time.monotonic()
+            for n, ns in probe.get_node_names_and_namespaces():
+                if n in names and ns == namespace and n not in seen:
+                    seen[n] = now
+                    clients[n] = probe.create_client(
+                        ListParameters, f'{namespace.rstrip("/")}/{n}/list_parameters')
+            for n, c in clients.items():
+                if n not in futures and c.service_is_ready():
+                    futures[n] = c.call_async(ListParameters.Request(depth=1))
+            alive = sorted(n for n, f in futures.items() if f.done() and f.exception() is None)
+            if alive:
+                return alive
+            waiting = [n for n, t in seen.items() if now - t < answer_s]
+            if now >= end and not waiting:
+                return []
+            rclpy.spin_once(probe, timeout_sec=0.02)
+        return []
+    finally:
+        for c in clients.values():
+            probe.destroy_client(c)
+        probe.destroy_node()
 
 
 def _run_in_process(args: argparse.Namespace, extra: list[str], stop: threading.Event) -> int:
@@ -568,6 +657,8 @@ def _run_in_process(args: argparse.Namespace, extra: list[str], stop: threading.
 
 def _run_processes(args: argparse.Namespace, extra: list[str], stop: threading.Event) -> int:
     import rclpy
+
+    from .nodes.runner import EXIT_CONFIG
     group = ProcessBringUp(args.config, sim=not args.no_sim, nodes=args.nodes, extra_args=extra,
                            manual_lifecycle=args.manual_lifecycle)
     helper = rclpy.create_node('brace_bringup')
@@ -581,7 +672,8 @@ def _run_processes(args: argparse.Namespace, extra: list[str], stop: threading.E
         dead = group.failed()
         if dead:
             log.error(f'node process(es) ended: {dead}; stopping the others')
-            rc = 1
+            # a node that found a configuration error (exit 2) makes it the bring-up's
+            rc = EXIT_CONFIG if EXIT_CONFIG in dead.values() else 1
             break
     if DRIVER in group.names and group.procs[DRIVER].poll() is None:
         ok, msg = disable_drives(helper)
@@ -591,7 +683,7 @@ def _run_processes(args: argparse.Namespace, extra: list[str], stop: threading.E
     bad = {n: c for n, c in codes.items() if c not in (0, -signal.SIGINT)}
     if bad:
         log.error(f'exit codes: {bad}')
-        rc = 1
+        rc = rc or 1
     helper.destroy_node()
     return rc
 

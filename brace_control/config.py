@@ -90,6 +90,9 @@ class DeviceConfig(dict):
         schema.validate(params, self.source)
         super().__init__(schema.with_defaults(params))
         self.path = path
+        #: the mechanism model built from these parameters, when one was (the checks at
+        #: start-up build it; a node takes it instead of building a second)
+        self.model: Any = None
 
     def get_path(self, dotted: str, default: Any = ...) -> Any:
         node: Any = self

@@ -29,8 +29,14 @@ _ids = itertools.count()
 
 
 def _config(eds, **can) -> DeviceConfig:
+    """The lumbar brace on durand drives. Three durand nodes answer SYNC from three receive
+    threads of this test process, sharing one lock: on a loaded host one of them can lag the
+    others by tens of SYNCs, which a real drive never does. The supervision's time bounds are
+    widened for that (staleness, heartbeats); what is checked is the protocol and the motion."""
     params = copy.deepcopy(dict(CFG))
-    params['can'].update(eds=str(eds), sim=False, load_cell_object='0x2100:1', **can)
+    params['can'].update(eds=str(eds), sim=False, load_cell_object='0x2100:1',
+                         heartbeat_consumer_ms=1000, master_heartbeat_ms=250, **can)
+    params['safety']['stale_periods'] = 250
     return DeviceConfig(params, CFG.path)
 
 
@@ -76,8 +82,8 @@ def test_master_boots_homes_and_moves_durand_drives(tmp_path):
         q1 = MECH.inverse(MECH.home_pose + np.array([0.0, 0.008, 0.02]))
         assert master.execute(_min_jerk(q0, q1, 1.0), start=time.perf_counter() + 0.05, tag=7) is None
         _wait(lambda: not master.moving, 5.0, 'the motion to end')
-        events = [e.kind for e in master.execution_events() if e.tag == 7]
-        assert events[-1] == 'finished', events
+        events = [(e.kind, e.reason) for e in master.execution_events() if e.tag == 7]
+        assert events[-1][0] == 'finished', (events, master.supervisor.summary())
         # the oracle: each durand drive's own true position (its first-order loop settles)
         _wait(lambda: all(abs(d.position_m - q) < 2e-6 for d, q in zip(drives, q1)), 2.0,
               'the durand actuators at the end of the motion')

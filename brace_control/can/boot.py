@@ -40,6 +40,8 @@ log = logging.getLogger('brace_control.can.master')
 LISTEN_S = 0.25
 #: s an SDO probe (a read of 1000h) of a drive that sent no boot-up may take
 PROBE_TIMEOUT_S = 0.1
+#: s the boot listens at least for another master's SYNC (10 periods of a 500 Hz master)
+MASTER_LISTEN_S = 0.02
 
 
 class BootMixin:
@@ -188,6 +190,9 @@ class BootMixin:
             net.connect()
             self.network = net
             self._stop.clear()
+            # silent until the boot has listened for another master (our heartbeat would make a
+            # running master stop)
+            self._heartbeat_on = False
             self._thread = threading.Thread(target=self._run, name='brace-can-sync', daemon=True)
             self._thread.start()
             self._set_state(MasterState.OPEN)
@@ -266,8 +271,20 @@ class BootMixin:
         deadline = time.monotonic() + limit
         nodes = self._nodes
         listen_end = time.monotonic() + min(LISTEN_S, 0.5 * limit)
+        # at least a few SYNC periods of another master's, before any write
+        heard_end = time.monotonic() + MASTER_LISTEN_S
         for n in nodes:
             n.booted.wait(max(0.0, listen_end - time.monotonic()))
+        time.sleep(max(0.0, heard_end - time.monotonic()))
+        other = self.foreign_master()
+        if other:
+            self._set_state(MasterState.OPEN)
+            raise DriverInitializationError(
+                f'another CANopen master is on {self.config.interface}:{self.config.channel}: '
+                f'{other}. Two masters would send SYNC and targets to the same drives; stop the '
+                'other master (another brace-bringup? ros2 node list) and configure again. '
+                'Nothing was sent to the drives')
+        self._heartbeat_on = True                        # the bus is ours: our heartbeat from now
         silent = [n for n in nodes if not n.booted.is_set()]
         for n in silent:
             log.info('node %d: no boot-up or heartbeat heard; NMT reset communication', n.node_id)

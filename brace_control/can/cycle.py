@@ -96,7 +96,8 @@ class CycleMixin:
             self._next_hb += self._hb_period
             if self._next_hb <= t_wake:
                 self._next_hb = t_wake + self._hb_period
-            self._send(self._hb_msg)
+            if self._heartbeat_on:
+                self._send(self._hb_msg)
         if k % 256 == 0:
             self._update_rates(t_wake)
         if not self._pdo_running:

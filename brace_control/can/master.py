@@ -186,6 +186,10 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
         #: heartbeat (1016h = 2 x master_heartbeat_ms): by then they quick-stop themselves.
         self.all_silent_periods = max(config.limits.stale_periods,
                                       math.ceil(2 * config.master_heartbeat_ms * 1e-3 / config.period))
+        #: (COB-ID, monotonic, count) of the last SYNC or master heartbeat another node sent
+        self._foreign_master: tuple[int, float, int] | None = None
+        self._own_heartbeat_id = 0x700 + config.master_node_id
+        self._heartbeat_on = False             # produced once the boot found no other master
         self._hb_msg = Frame(arbitration_id=0x700 + config.master_node_id,
                                    data=bytes([NmtState.OPERATIONAL]), is_extended_id=False)
         self._sync_msg = Frame(arbitration_id=_SYNC_ID, data=b'', is_extended_id=False)
@@ -674,7 +678,8 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
                 self.executor.release('the driver shut down')
                 self._events.extend(self.executor.events)
                 self.executor.events.clear()
-            if self.network is not None and self._drives:
+            if self.network is not None and self._drives and self._heartbeat_on:
+                # (only drives this master took over: a master refused at boot leaves them be)
                 for d in self._nodes:
                     try:
                         d.node.nmt.send_command(0x80)     # pre-operational: PDOs off, SDO kept

@@ -189,6 +189,30 @@ class ReceiveMixin:
                     still_present=self._emcy_present(d))
         return on_emcy
 
+    def _on_foreign_master(self, cob: int) -> None:
+        """A SYNC, or a heartbeat with our node id, that this master did not send: another
+        master drives the bus (a second bring-up, a PLC, a ros2_canopen master)."""
+        now = time.monotonic()
+        first = self._foreign_master is None
+        self._foreign_master = (cob, now, self._foreign_master[2] + 1 if not first else 1)
+        if self._supervising:
+            what = 'SYNC (080h)' if cob == 0x80 else f'heartbeat of node {cob - 0x700} (ours)'
+            self.supervisor.report(
+                FaultKind.FOREIGN_MASTER,
+                f'another CANopen master is on the bus: {what} frames this master did not send; two '
+                'masters send SYNC and targets to the same drives: stop the other one',
+                still_present=lambda: time.monotonic() - self._foreign_master[1] < 1.0)
+
+    def foreign_master(self) -> str:
+        """What another master on the bus was heard sending ('' if nothing)."""
+        seen = self._foreign_master
+        if seen is None:
+            return ''
+        cob, _, count = seen
+        what = 'SYNC frames (COB-ID 080h)' if cob == 0x80 else \
+            f'heartbeats of node {cob - 0x700}, the master node id can.master_node_id'
+        return f'{count} {what} that this master did not send'
+
     def _on_error_frame(self, msg: can.Message) -> None:
         self.error_frames += 1
         info = decode_error_frame(msg)
@@ -259,6 +283,9 @@ class BusListener(can.Listener):
         if msg.is_error_frame:
             m._on_error_frame(msg)
             return
+        cob = msg.arbitration_id
+        if (cob == 0x80 or cob == m._own_heartbeat_id) and msg.is_rx:
+            m._on_foreign_master(cob)             # not our own frame: another master
         m._rx_frames += 1
         m._rx_bits += frame_bits(msg.dlc, extended=msg.is_extended_id)
 

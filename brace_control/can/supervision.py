@@ -78,6 +78,7 @@ class FaultKind(enum.Enum):
     LOAD_CELL_SATURATED = 'load cell saturated'    # SAFETY 9
     FOLLOWING_ERROR = 'following error'            # SAFETY 11
     CYCLE_STOPPED = 'SYNC thread stopped'          # the master's own cycle died
+    FOREIGN_MASTER = 'another master on the bus'   # SYNC / our heartbeat id from someone else
     EXTERNAL = 'external stop'                     # reported by a caller
 
 

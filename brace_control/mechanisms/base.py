@@ -628,10 +628,13 @@ def section_points(section: Mapping[str, Any], key: str, n: int, label: str) -> 
 
 @contextmanager
 def config_errors() -> Iterator[None]:
-    """Re-raise a constructor's ``ValueError`` / ``TypeError`` as ``ConfigError('mechanism: ...')``."""
+    """Re-raise a constructor's ``ValueError`` / ``TypeError`` as ``ConfigError('mechanism: ...')``
+    (an :class:`UnreachablePose`: the home pose the constructor checks, ``mechanism.home_pose``)."""
     try:
         yield
     except ConfigError:
         raise
+    except UnreachablePose as exc:
+        raise ConfigError(f'mechanism.home_pose is not reachable: {exc}') from exc
     except (ValueError, TypeError) as exc:
         raise ConfigError(f'mechanism: {exc}') from exc

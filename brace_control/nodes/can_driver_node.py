@@ -276,7 +276,7 @@ class CanDriverNode(LifecycleNode):
     def _mechanism(self) -> Any:
         try:
             from ..mechanisms import mechanism_from_config
-            return mechanism_from_config(self.cfg)
+            return self.cfg.model or mechanism_from_config(self.cfg)
         except ImportError:
             return None
 

@@ -67,7 +67,7 @@ class IkNode(Node):
     def __init__(self, *, node_name: str = 'ik_node', **kwargs) -> None:
         super().__init__(node_name, **kwargs)
         self.cfg = declare_device_parameters(self, ('mechanism', 'actuator', 'trajectory'), cli_args=kwargs.get('cli_args'))
-        self.mechanism = mechanism_from_config(self.cfg)
+        self.mechanism = self.cfg.model or mechanism_from_config(self.cfg)
         self.base_frame: str = self.cfg['base_frame']
         self.actuator_names = tuple(self.mechanism.actuator_names)
         self._kind = pose_kind(self.mechanism)

@@ -102,7 +102,7 @@ class InteractionNode(Node):
         super().__init__(node_name, **kwargs)
         self.cfg = declare_device_parameters(
             self, ('mechanism', 'actuator', 'trajectory', 'safety', 'interaction'), cli_args=kwargs.get('cli_args'))
-        self.mechanism = mechanism_from_config(self.cfg)
+        self.mechanism = self.cfg.model or mechanism_from_config(self.cfg)
         self.params = AdmittanceParams.from_config(self.cfg, self.mechanism)
         #: the goal checks (held axes, max_goal_wrench, capacity at the estimated pose)
         self.checker = AdmittanceController(self.mechanism, self.params)

@@ -75,7 +75,7 @@ class KineticsNode(Node):
     def __init__(self, *, node_name: str = 'kinetics_node', **kwargs) -> None:
         super().__init__(node_name, **kwargs)
         self.cfg = declare_device_parameters(self, ('mechanism', 'actuator', 'kinetics'), cli_args=kwargs.get('cli_args'))
-        self.mechanism = mechanism_from_config(self.cfg)
+        self.mechanism = self.cfg.model or mechanism_from_config(self.cfg)
         kin, act = self.cfg['kinetics'], self.cfg['actuator']
         scaling = scaling_from_config(self.cfg)
         self.rotary = actuator_kind(self.cfg) == 'rotary'

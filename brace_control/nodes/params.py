@@ -29,7 +29,8 @@ from rclpy.node import Node
 
 from pathlib import Path
 
-from ..config import ConfigError, DeviceConfig
+from ..checks import check_device
+from ..config import ConfigError, DeviceConfig, load_device_config
 from ..schema import ROS_BUILTIN_PREFIXES, SCHEMA, Param, lookup, nest, param_type
 
 __all__ = ['Param', 'SCHEMA', 'declare_device_parameters', 'ConfigError', 'params_file_source']
@@ -105,12 +106,15 @@ def declare_device_parameters(node: Node, sections: Iterable[str], *,
     files = params_files(cli_args or ()) or params_files()
     where = source or ', '.join(files) or f'the parameters of node {node.get_name()!r}'
     # the last parameter file wins in ROS; the files it names are relative to it
-    path = Path(files[-1]).resolve() if files else None
+    path = Path(files[-1]).absolute() if files else None
+    for f in files:
+        load_device_config(f)       # what rcl's parser lets pass: a key given twice, not UTF-8
     device = {k: v for k, v in given.items() if not k.startswith(ROS_BUILTIN_PREFIXES)}
     nested: dict[str, Any] = {}
     for name, value in device.items():
         nest(nested, name, value)
-    full = DeviceConfig(nested, source=where)       # the schema check of the whole file
+    full = DeviceConfig(nested, path, source=where)   # the schema check of the whole file
+    model = check_device(full)                         # and the checks across its keys
     cfg: dict[str, Any] = {}
 
     def declare(name: str, default: Any, descriptor: ParameterDescriptor) -> Any:
@@ -152,4 +156,5 @@ def declare_device_parameters(node: Node, sections: Iterable[str], *,
     out = DeviceConfig(cfg, path, source=where)
     for key in [k for k, v in out.items() if isinstance(v, dict) and k not in sections]:
         del out[key]                 # only what the node declared, never silent defaults
+    out.model = model if 'mechanism' in sections else None    # the same geometry: one model
     return out

@@ -5,10 +5,17 @@ ends up in :func:`run_node`. Exit codes: 0 clean (Ctrl-C / SIGTERM / shutdown),
 1 start-up error of the device (``can_driver_node``: the CAN bus or a drive did not come
 up), 2 configuration error (bad parameter file or value, message on stderr).
 
-SIGINT and SIGTERM (Ctrl-C, launch, systemd, ``brace-bringup --processes``) end the spin
-loop, not the ROS context: the node's ``shutdown()`` then runs while it can still publish
-(the trajectory node reports its running and queued goals aborted, the driver disables
-the drives), and only then is the context shut down.
+SIGINT, SIGTERM, SIGHUP and SIGQUIT (Ctrl-C, launch, systemd, a closed terminal or an SSH
+drop, ``brace-bringup --processes``) end the spin loop, not the ROS context: the node's
+``shutdown()`` then runs while it can still publish (the trajectory node reports its running
+and queued goals aborted, the driver disables the drives), and only then is the context shut
+down.
+
+Never unsupervised: a node that ``brace-bringup`` started ends when the bring-up ends, by
+any means, SIGKILL included (:func:`watch_parent`): the bring-up hands each node the read end
+of a pipe (``BRACE_PARENT_FD``) and keeps the write end; when the bring-up process is gone
+the pipe reads end-of-file and the node stops as on SIGTERM (drives disabled first). On
+Linux the kernel's parent-death signal (SIGTERM) backs it up.
 """
 from __future__ import annotations
 
@@ -25,14 +32,58 @@ from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedE
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
-from ..config import ConfigError
+from ..config import ConfigError, load_device_config
 
-__all__ = ['run_node', 'usage', 'make_executor', 'freeze_start_up_heap', 'EXIT_STARTUP', 'EXIT_CONFIG']
+__all__ = ['run_node', 'usage', 'make_executor', 'freeze_start_up_heap', 'watch_parent',
+           'STOP_SIGNALS', 'PARENT_FD_ENV', 'EXIT_STARTUP', 'EXIT_CONFIG']
 
 EXIT_STARTUP = 1
 EXIT_CONFIG = 2
 #: s run_node waits at exit for callbacks still running
 EXECUTOR_SHUTDOWN_S = 2.0
+#: the signals that stop a node (and the bring-up) cleanly: the drives are disabled first
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
+#: environment variable: the read end of the pipe a parent (brace-bringup) keeps open
+PARENT_FD_ENV = 'BRACE_PARENT_FD'
+
+
+def _parent_death_signal(sig: int) -> bool:
+    """Linux: the kernel sends ``sig`` to this process when its parent ends (prctl
+    PR_SET_PDEATHSIG). Returns whether it took effect."""
+    if not sys.platform.startswith('linux'):
+        return False
+    try:
+        import ctypes
+        libc = ctypes.CDLL(None, use_errno=True)
+        return libc.prctl(1, int(sig), 0, 0, 0) == 0          # PR_SET_PDEATHSIG = 1
+    except (OSError, AttributeError):
+        return False
+
+
+def watch_parent(stop: threading.Event, env: dict[str, str] | None = None) -> threading.Thread | None:
+    """Set ``stop`` when the parent that started this process is gone (module docstring).
+
+    Reads the pipe named by ``BRACE_PARENT_FD`` in a daemon thread: the parent never writes
+    to it, so a read returns only at end-of-file, when the parent's write end closed, i.e.
+    when the parent exited, by any signal. Returns the thread (``None`` without a pipe).
+    """
+    env = os.environ if env is None else env
+    text = env.get(PARENT_FD_ENV, '')
+    if not text.isdigit():
+        return None
+    fd = int(text)
+    _parent_death_signal(signal.SIGTERM)
+
+    def wait_for_eof() -> None:
+        try:
+            while os.read(fd, 64):
+                pass
+        except OSError:
+            pass
+        stop.set()
+    thread = threading.Thread(target=wait_for_eof, name='brace-parent-watch', daemon=True)
+    thread.start()
+    return thread
 
 
 def make_executor(context: object = None) -> Executor:
@@ -99,8 +150,16 @@ def run_node(factory: Callable[[], Node], *, executable: str, summary: str,
     # first, so a signal during start-up (rclpy.init, building the node) ends the process
     # cleanly too, not with a KeyboardInterrupt traceback.
     stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
+    for sig in STOP_SIGNALS:
         signal.signal(sig, lambda *_: stop.set())
+    watch_parent(stop)
+    from .params import params_files
+    try:
+        for f in params_files(argv):            # ours first: rcl's parser takes a key twice
+            load_device_config(f)
+    except ConfigError as exc:
+        print(f'{executable}: configuration error: {exc}', file=sys.stderr)
+        return EXIT_CONFIG
     try:
         rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     except Exception as exc:  # noqa: BLE001 - rcl reports bad --ros-args as RCLError
@@ -113,6 +172,9 @@ def run_node(factory: Callable[[], Node], *, executable: str, summary: str,
         print(f'{executable}: configuration error: {exc}', file=sys.stderr)
         rclpy.try_shutdown()
         return EXIT_CONFIG
+    except KeyboardInterrupt:
+        rclpy.try_shutdown()
+        return 0
     spinner = executor()
     code = 0
     try:

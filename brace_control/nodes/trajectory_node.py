@@ -56,6 +56,7 @@ from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from rclpy.duration import Duration
 from rclpy.node import Node
+from rclpy.serialization import deserialize_message
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
@@ -94,7 +95,7 @@ class TrajectoryNode(Node):
     def __init__(self, *, node_name: str = 'trajectory_node', **kwargs) -> None:
         super().__init__(node_name, **kwargs)
         self.cfg = declare_device_parameters(self, ('mechanism', 'trajectory', 'actuator', 'safety'), cli_args=kwargs.get('cli_args'))
-        self.mechanism = mechanism_from_config(self.cfg)
+        self.mechanism = self.cfg.model or mechanism_from_config(self.cfg)
         self.base_frame: str = self.cfg['base_frame']
         self.platform_frame: str = self.cfg['platform_frame']
         traj = self.cfg['trajectory']
@@ -139,8 +140,12 @@ class TrajectoryNode(Node):
         self._traj_pub = self.create_publisher(MultiDOFJointTrajectory, topics.POSE_TRAJECTORY,
                                                topics.TRAJECTORY_QOS)
         self._status_pub = self.create_publisher(DiagnosticStatus, topics.GOAL_STATUS, topics.STATUS_QOS)
-        self.create_subscription(PoseStamped, topics.POSE_GOAL, self._on_goal, topics.GOAL_QOS)
-        self.create_subscription(Path, topics.POSE_PATH, self._on_path, topics.GOAL_QOS)
+        # raw: a goal whose bytes do not deserialise (a corrupted bag, a foreign publisher)
+        # still gets its goal id and a rejected status saying why (rclpy would drop it unseen)
+        self.create_subscription(PoseStamped, topics.POSE_GOAL, self._raw(PoseStamped, self._on_goal, 'pose_goal'),
+                                 topics.GOAL_QOS, raw=True)
+        self.create_subscription(Path, topics.POSE_PATH, self._raw(Path, self._on_path, 'pose_path'),
+                                 topics.GOAL_QOS, raw=True)
         self.create_subscription(PoseStamped, topics.POSE, self._on_estimate, topics.MEASURED_QOS)
         self._exec_sub = self.create_subscription(DiagnosticStatus, topics.EXECUTION_STATUS, self._on_execution,
                                  topics.STATUS_QOS)
@@ -167,6 +172,21 @@ class TrajectoryNode(Node):
         gid = str(self._next_id)
         self._next_id += 1
         return gid
+
+    def _raw(self, msg_type: type, handler, source: str):
+        """A callback taking the serialised goal: deserialised here, or rejected with why."""
+        def on_bytes(data: bytes) -> None:
+            try:
+                msg = deserialize_message(data, msg_type)
+            except Exception as exc:  # noqa: BLE001 - the CDR decoder raises several kinds
+                gid = self._new_id()
+                self._meta[gid] = {'stamp': 0, 'source': source}
+                why = (f'malformed goal: its {len(data)} bytes are not a {msg_type.__name__} '
+                       f'(CDR): {exc}')
+                self._report([GoalEvent(gid, GoalState.REJECTED, why)])
+                return
+            handler(msg)
+        return on_bytes
 
     def _on_goal(self, msg: PoseStamped) -> None:
         gid = self._new_id()
@@ -461,7 +481,9 @@ class TrajectoryNode(Node):
             self._planner.join(timeout=2.0)
 
     def destroy_node(self) -> None:
-        if not self._closing:
+        # a node whose constructor raised (a configuration error) is destroyed by the context
+        # too: it has no planner to stop
+        if not getattr(self, '_closing', True):
             self.shutdown()
         super().destroy_node()
 
