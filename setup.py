@@ -38,6 +38,8 @@ setup(
             'brace-spm-study = brace_control.tools.spm_study:main',
             'brace-continuum-plot = brace_control.tools.continuum_plot:main',
             'brace-design = brace_control.tools.design:main',
+            'brace-commission = brace_control.commission:main',
+            'brace_commission = brace_control.commission:main',
         ],
     },
 )

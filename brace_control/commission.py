@@ -54,6 +54,8 @@ PROBE_WINDOW_S = 0.15
 #: a drive's scale counts as wrong beyond this relative deviation (a wrong counts per
 #: revolution is a factor: x4 evaluation forgotten, another encoder)
 SCALE_TOLERANCE = 0.1
+#: the scales a drive may have (travel over commanded travel): a wrong counts per revolution
+SCALE_RANGE = (0.2, 5.0)
 #: a load cell's gain counts as wrong beyond this
 GAIN_TOLERANCE = 0.01
 #: a jog's effect must stand this many standard errors above the load cells' noise
@@ -277,47 +279,58 @@ def model_response(cfg: DeviceConfig, sim_model: Any, pose: np.ndarray, step: fl
         minus[j] -= step
         _, fp = sim_model.static_forces(plus, pose)
         _, fm = sim_model.static_forces(minus, pose)
-        M[:, j] = (fp - fm) / (2 * step)
-        if not np.any(M[:, j]):            # a cable that goes slack one way: the other side
-            M[:, j] = (f_base - fm) / step if np.any(f_base - fm) else (fp - f_base) / step
+        # the steeper side (a cable goes slack one way and tightens the other)
+        up, down = (fp - f_base) / step, (f_base - fm) / step
+        M[:, j] = up if np.max(np.abs(up)) >= np.max(np.abs(down)) else down
     return M
 
 
-def identify(M: np.ndarray, jogs: dict[int, tuple[float, np.ndarray]], noise: np.ndarray
-             ) -> tuple[tuple[int, ...], list[AxisFinding], float]:
-    """The assignment of the jogged nodes to actuators that explains the load-cell changes.
+def identify(F: dict[tuple[int, int, int], np.ndarray], jogs: dict[int, tuple[float, np.ndarray]],
+             noise: np.ndarray) -> tuple[tuple[int, ...], list[AxisFinding], float]:
+    """The assignment of the jogged nodes to actuators, and each drive's sign and scale, that
+    explain the load-cell changes of all the jogs together.
 
-    :param M: model response ``M[k, j]`` (load cell of actuator ``k`` per unit of actuator ``j``).
-    :param jogs: axis ``i`` (node believed to drive actuator ``i``) -> (commanded travel, the
-        measured change of the load cells, read node by node in axis order).
+    :param F: ``F[i, j, s]``: the model's change of every load cell (actuator order) when the
+        jog of axis ``i`` moves actuator ``j`` the commanded way (``s = +1``) or the other way
+        (``s = -1``), the others holding (secants at the jog's own amplitude: the model need
+        not be linear over it, a cable pulls only one way).
+    :param jogs: axis ``i`` (the node believed to drive actuator ``i``) -> (commanded travel,
+        the measured change of the load cells, read node by node in axis order).
     :param noise: standard deviation of each measured change.
-    :returns: ``perm`` (``perm[i]`` = the actuator node ``i`` drives), one finding per jog, and
-        the margin: the next best assignment's misfit over the best's (large: unambiguous).
+    :returns: ``perm`` (``perm[i]``: the actuator node ``i`` drives), one finding per jog, and
+        the margin: the next best assignment's misfit minus the best's (in units of the
+        noise variance; small: the load cells cannot tell them apart).
     """
-    n = M.shape[0]
+    n = len(noise)
+    w = 1.0 / np.maximum(noise, 1e-12) ** 2
+
+    def fit(i: int, j: int, sign: int, perm: Sequence[int], df: np.ndarray) -> tuple[float, float, float]:
+        # the scale a drive can really have is a factor near 1 (a wrong counts per revolution:
+        # x4, x2, 1/2 ...): within SCALE_RANGE; "it did not move" is not an explanation (the
+        # encoder says it moved)
+        col = F[i, j, sign][list(perm)]     # the reading of node k is the load cell of actuator perm[k]
+        denom = float(np.sum(w * col * col))
+        if denom < 1.0:                      # the model predicts no change (a cable going slack)
+            return float(np.sum(w * df * df)), 1.0, 0.0
+        x = min(max(float(np.sum(w * col * df)) / denom, SCALE_RANGE[0]), SCALE_RANGE[1])
+        return float(np.sum(w * (df - x * col) ** 2)), x, denom
+
     scores = []
     for perm in itertools.permutations(range(n)):
         total = 0.0
-        for i, (delta, df) in jogs.items():
-            col = M[list(perm), perm[i]]          # reading of node k = load cell of actuator perm[k]
-            w = 1.0 / np.maximum(noise, 1e-12) ** 2
-            denom = float(np.sum(w * col * col))
-            x = float(np.sum(w * col * df)) / denom if denom > 0 else 0.0
-            total += float(np.sum(w * (df - x * col) ** 2))
+        for i, (_, df) in jogs.items():
+            total += min(fit(i, perm[i], s, perm, df)[0] for s in (1, -1))
         scores.append((total, perm))
-    scores.sort(key=lambda s: s[0])
+    scores.sort(key=lambda item: item[0])
     best_score, perm = scores[0]
     margin = (scores[1][0] - best_score) if len(scores) > 1 else math.inf
     findings = []
-    for i, (delta, df) in jogs.items():
-        col = M[list(perm), perm[i]]
-        w = 1.0 / np.maximum(noise, 1e-12) ** 2
-        denom = float(np.sum(w * col * col))
-        x = float(np.sum(w * col * df)) / denom if denom > 0 else 0.0
-        stderr = (1.0 / math.sqrt(denom) / abs(delta)) if denom > 0 else math.inf
-        ratio = x / delta if delta else 0.0
-        findings.append(AxisFinding(i, perm[i], 1 if ratio >= 0 else -1, abs(ratio), stderr,
-                                    abs(ratio) > SIGNIFICANCE * stderr))
+    for i, (_, df) in jogs.items():
+        (res_p, x_p, den_p), (res_m, x_m, den_m) = (fit(i, perm[i], s, perm, df) for s in (1, -1))
+        sign, x, denom = (1, x_p, den_p) if res_p <= res_m else (-1, x_m, den_m)
+        stderr = 1.0 / math.sqrt(denom) if denom > 0 else math.inf
+        # significant: one sign explains the change far better than the other
+        findings.append(AxisFinding(i, perm[i], sign, x, stderr, abs(res_p - res_m) > 25.0))
     return perm, findings, margin
 
 
@@ -401,10 +414,13 @@ class Session:
         return m
 
 
-def _settled_forces(master: Any, samples: int = SAMPLES, timeout: float = 10.0) -> tuple[np.ndarray, np.ndarray]:
-    """Mean and standard deviation of each load cell over ``samples`` SYNCs (one per SYNC)."""
+def _settled_forces(master: Any, samples: int = SAMPLES, timeout: float = 10.0,
+                    skip: int = 10) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and standard error of each load cell over ``samples`` SYNCs (one per SYNC), after
+    ``skip`` SYNCs (answers already on their way when the load changed)."""
     seen: list[np.ndarray] = []
     last = None
+    samples += skip
     end = time.monotonic() + timeout
     while len(seen) < samples and time.monotonic() < end:
         fb = master.feedback()
@@ -414,7 +430,7 @@ def _settled_forces(master: Any, samples: int = SAMPLES, timeout: float = 10.0) 
         time.sleep(master.config.period * 0.5)
     if len(seen) < samples // 2:
         raise CommissionError('the load cells did not answer (no feedback)')
-    arr = np.array(seen)
+    arr = np.array(seen[skip:])
     return arr.mean(axis=0), arr.std(axis=0, ddof=1) / math.sqrt(len(arr))
 
 
@@ -477,8 +493,9 @@ def run_check(session: Session, *, axes: Sequence[int] | None = None, jog: float
                            mechanism=session.mech)
     home = np.asarray(session.mech.home_pose, float)
     step = 1e-5 if not session.rotary else math.radians(0.005)
-    M = model_response(cfg, model, home, step)
-    _, f_home = model.static_forces(session.mech.inverse(home), home)
+    M = model_response(cfg, model, home, step)          # for the jogs' size
+    q_home = np.asarray(session.mech.inverse(home), float)
+    _, f_home = model.static_forces(q_home, home)
     jog = jog if jog is not None else (math.radians(0.5) if session.rotary else 0.0005)
     master = session.master(node_ids)
     lines: list[str] = []
@@ -524,8 +541,15 @@ def run_check(session: Session, *, axes: Sequence[int] | None = None, jog: float
             jogs[i] = (delta, df)
             lines.append(f'{names[i]} (node {master.config.node_ids[i]}): jogged {delta * (1e3 if not session.rotary else 180 / math.pi):+.3f} '
                          f'{"mm" if not session.rotary else "deg"}, load cells changed by {np.round(df, 3).tolist()} N')
+        F = {}
+        for i, (delta, _) in jogs.items():
+            for j in range(n):
+                for sgn in (1, -1):
+                    q = q_home.copy()
+                    q[j] += sgn * delta
+                    F[i, j, sgn] = model.static_forces(q, home)[1] - f_home
         sigma = np.full(n, noise * math.sqrt(2.0 / SAMPLES)) + 1e-4
-        perm, findings, margin = identify(M, jogs, sigma)
+        perm, findings, margin = identify(F, jogs, sigma)
     finally:
         try:
             master.disable()
@@ -567,14 +591,15 @@ def run_check(session: Session, *, axes: Sequence[int] | None = None, jog: float
     inv = {f.actuator if (all_jogged and not ambiguous) else f.axis: f.axis for f in findings}
     for phys in range(n):
         node_axis = inv.get(phys, phys)
-        if abs(offsets[node_axis] - believed_offset[node_axis]) > max(5 * rest_err[node_axis], 2 * noise / math.sqrt(SAMPLES), 0.02):
+        if abs(offsets[node_axis] - believed_offset[phys]) > max(5 * rest_err[node_axis], 2 * noise / math.sqrt(SAMPLES), 0.02):
             new_offsets[phys] = float(offsets[node_axis])
     if all_jogged and not ambiguous:
-        g = _row_gains(M, jogs, perm, findings, new_cpr, cpr)
+        g = _row_gains(F, jogs, perm, findings, new_cpr, cpr, sigma)
         for phys in range(n):
             node_axis = inv.get(phys, phys)
-            if g[node_axis] is not None and abs(g[node_axis] - 1.0) > GAIN_TOLERANCE:
-                new_gains[phys] = round(float(gains[phys] * g[node_axis]), 4)
+            # g: the cell's own gain (raw reading over force), the believed one undone in df
+            if g[node_axis] is not None and abs(g[node_axis] - gains[phys]) > GAIN_TOLERANCE * gains[phys]:
+                new_gains[phys] = round(float(g[node_axis]), 4)
     if new_ids != believed_ids:
         corrections['can.node_ids'] = new_ids
     if not np.array_equal(new_pol, polarity):
@@ -588,20 +613,29 @@ def run_check(session: Session, *, axes: Sequence[int] | None = None, jog: float
     return CheckResult(corrections, lines, findings, traces)
 
 
-def _row_gains(M: np.ndarray, jogs: dict, perm: Sequence[int], findings: Sequence[AxisFinding],
-               new_cpr: np.ndarray, cpr: np.ndarray) -> list[float | None]:
+def _row_gains(F: dict, jogs: dict, perm: Sequence[int], findings: Sequence[AxisFinding],
+               new_cpr: np.ndarray, cpr: np.ndarray, sigma: np.ndarray) -> list[float | None]:
     """Each node's load-cell gain: its reading's change over the model's, with every drive's
-    sign and (corrected) scale known, over all jogs."""
-    n = M.shape[0]
+    sign and (corrected) scale known, over all jogs; ``None`` where the jogs do not load that
+    cell enough to tell a gain off by :data:`GAIN_TOLERANCE` from the noise."""
+    n = len(perm)
     num, den = np.zeros(n), np.zeros(n)
     by_axis = {f.axis: f for f in findings}
-    for i, (delta, df) in jogs.items():
+    for i, (_, df) in jogs.items():
         f = by_axis[i]
-        scale = f.sign * (cpr[f.actuator] / new_cpr[f.actuator])
-        pred = M[list(perm), perm[i]] * delta * scale
+        if not f.significant:
+            continue
+        scale = cpr[f.actuator] / new_cpr[f.actuator]
+        pred = F[i, perm[i], f.sign][list(perm)] * scale
         num += pred * df
         den += pred * pred
-    return [float(num[k] / den[k]) if den[k] > 1e-6 else None for k in range(n)]
+    out: list[float | None] = []
+    for k in range(n):
+        if den[k] <= 1e-12 or sigma[k] / math.sqrt(den[k]) * SIGNIFICANCE > GAIN_TOLERANCE:
+            out.append(None)
+        else:
+            out.append(float(num[k] / den[k]))
+    return out
 
 
 def _per_axis(value: Any, n: int) -> np.ndarray:
@@ -768,6 +802,9 @@ def _main(args: argparse.Namespace) -> int:
         for d in found.differences:
             print(f'  differs: {d}')
         if args.command == 'scan':
+            if found.node_ids is not None:
+                print('corrections (YAML patch):')
+                print(f'  can.node_ids: {found.node_ids}')
             return EXIT_CORRECTED if found.differences else EXIT_MATCH
         corrections: dict[str, Any] = {}
         if found.node_ids is not None:

@@ -111,7 +111,14 @@ SCHEMA: dict[str, Param] = {
     'actuator.screw_lead': _ro(None, 'travel per motor revolution (linear actuators; a cable drum: '
                                '2 pi r); required when actuator.kind is linear', (1e-6, 1.0), 'm',
                                type='float'),
-    'actuator.encoder_counts_per_rev': _ro(8192, 'encoder counts per motor revolution', (1, 1 << 24), 'counts'),
+    'actuator.encoder_counts_per_rev': _ro(8192, 'encoder counts per motor revolution, one for all or per '
+                                           'actuator', (1, 1 << 24), 'counts', type='int|int[]'),
+    'actuator.polarity': _ro(1, '+1 or -1, one for all or per actuator: -1 turns the drive\'s counts around '
+                             '(its position grows as the actuator shortens)', (-1, 1), type='int|int[]'),
+    'actuator.load_cell_gain': _ro(1.0, 'load-cell reading per N of force, one for all or per actuator '
+                                   '(brace-commission calibrate-load-cell)', (1e-6, 1e6), type='number'),
+    'actuator.load_cell_offset': _ro(0.0, 'load-cell reading with no force, one for all or per actuator '
+                                     '(the tare)', (-1e5, 1e5), 'N or N·m', type='number'),
     'actuator.load_cell_rated_force': _ro(300.0, 'load-cell full scale (rotary drives without motor data: '
                                           'torque full scale)', (1.0, 1e5), 'N or N·m'),
     'actuator.load_cell_n_per_count': _ro(0.01, 'load-cell scaling', (1e-9, 1e3), 'N/count or N·m/count'),
@@ -244,7 +251,20 @@ SCHEMA: dict[str, Param] = {
                              'actuator.stiffness', (1.0, 1e12), 'N/m or N·m/rad', type='float',
                              default_from='actuator.stiffness'),
     'sim.load_cell_noise': _ro(0.05, 'load-cell noise standard deviation', (0.0, 1e3), 'N or N·m'),
-    'sim.load_cell_offset': _ro(0.0, 'load-cell offset', (-1e3, 1e3), 'N or N·m'),
+    'sim.load_cell_offset': _ro(0.0, "load-cell offset, one for all or per actuator (the hardware's "
+                                'truth; actuator.load_cell_offset is what the user believes)', (-1e3, 1e3),
+                                'N or N·m', type='number'),
+    'sim.load_cell_gain': _ro(1.0, 'load-cell gain (reading per N of force), one for all or per actuator',
+                              (1e-6, 1e6), type='number'),
+    'sim.node_ids': _ro(None, 'the node ids the simulated drives really have, in actuator order (0: that '
+                        'drive does not answer); absent: can.node_ids', (0, 127), type='int[]'),
+    'sim.polarity': _ro(None, 'the simulated drives\' real polarity, +1 or -1 per actuator; absent: all +1',
+                        (-1, 1), type='int|int[]'),
+    'sim.encoder_counts_per_rev': _ro(None, 'the simulated encoders\' real counts per revolution, one for '
+                                      'all or per actuator; absent: actuator.encoder_counts_per_rev',
+                                      (1, 1 << 24), 'counts', type='int|int[]'),
+    'sim.extra_node_ids': _ro(None, 'foreign nodes on the simulated bus (CiA 401 I/O modules) besides the '
+                              'brace\'s', (1, 127), type='int[]'),
     'sim.seed': _ro(1, 'random seed of the simulator', (0, 2**31 - 1)),
     'sim.drive_bandwidth_hz': _ro(30.0, 'position-loop bandwidth of the simulated CSP drives, '
                                   'Kp = 2 pi x bandwidth', (1.0, 500.0), 'Hz'),
@@ -503,7 +523,8 @@ def _expected(spec: Param) -> str:
     words = {'float': 'a float', 'int': 'an integer', 'bool': 'true or false', 'str': 'a string',
              'float[]': 'a list of floats', 'int[]': 'a list of integers', 'str[]': 'a list of strings', 'bool[]': 'a list of booleans',
              'number': 'a float or a list of floats', 'points': 'a list of point coordinates (floats)',
-             'int|str': 'an integer or a string', 'str|str[]': 'a string or a list of strings'}[t]
+             'int|str': 'an integer or a string', 'str|str[]': 'a string or a list of strings',
+             'int|int[]': 'an integer or a list of integers'}[t]
     if spec.default is not None:
         words += f' like {spec.default!r}'
     if spec.unit:
@@ -554,6 +575,10 @@ def check_value(name: str, value: Any, spec: Param, source: str | None = None) -
         ok = isinstance(value, bool)
     elif t == 'str':
         ok = isinstance(value, str)
+    elif t == 'int|int[]':
+        one = lambda v: isinstance(v, int) and not isinstance(v, bool)
+        ok = one(value) or (isinstance(value, (list, tuple)) and bool(value) and all(one(v) for v in value))
+        numbers = ([value] if one(value) else list(value)) if ok else None
     elif t == 'str|str[]':
         ok = isinstance(value, str) or (isinstance(value, (list, tuple)) and bool(value)
                                         and all(isinstance(v, str) for v in value))

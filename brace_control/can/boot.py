@@ -113,17 +113,23 @@ class BootMixin:
         cfg, sc = self.config, self.scaling
         lo, hi = self.limits.stroke_of(index)
         home = cfg.home_lengths[index] if cfg.home_lengths is not None else None
+        # in the drive's own counts (its polarity and counts per revolution)
+        p = cfg.polarity[index] if cfg.polarity else 1
+        r = cfg.count_ratio[index] if cfg.count_ratio else 1.0
+
+        def wire(counts: int) -> int:
+            return p * round(counts * r)
         return BootSettings(
             node_id=cfg.node_ids[index], name=cfg.names[index], master_node_id=cfg.master_node_id,
             master_heartbeat_ms=cfg.master_heartbeat_ms, drive_heartbeat_ms=cfg.drive_heartbeat_ms,
             period_us=round(cfg.period * 1e6), interpolation=interpolation_period(cfg.period),
             homing_method=cfg.homing_method,
-            following_error_counts=max(1, round(cfg.following_error_window * sc.counts_per_unit)),
-            velocity_counts=sc.velocity_to_counts(self.limits.v_max),
-            acceleration_counts=sc.acceleration_to_counts(self.limits.a_max),
-            soft_limits_counts=((sc.to_counts(lo), sc.to_counts(hi))
+            following_error_counts=max(1, round(cfg.following_error_window * sc.counts_per_unit * r)),
+            velocity_counts=round(sc.velocity_to_counts(self.limits.v_max) * r),
+            acceleration_counts=round(sc.acceleration_to_counts(self.limits.a_max) * r),
+            soft_limits_counts=(tuple(sorted((wire(sc.to_counts(lo)), wire(sc.to_counts(hi)))))
                                 if lo > float('-inf') and hi < float('inf') else None),
-            home_offset_counts=None if home is None else sc.to_counts(home),
+            home_offset_counts=None if home is None else wire(sc.to_counts(home)),
             load_cell=cfg.load_cell_object, rpdo=cfg.rpdo, tpdo=cfg.tpdo)
 
     def sdo_writes(self, index: int) -> list[SdoWrite]:
@@ -182,7 +188,11 @@ class BootMixin:
                 if plan.load_type is not None and cfg.load_cell_object is not None:
                     zero = LoadInput.of(plan.feedback.entries[plan.feedback.position_of('load')].code).zero
                 d = _Drive(name, plan.node_id, node, heartbeat=plan.heartbeat, index=i,
-                           rpdos=plan.rpdos, rpdo_sent=[None] * len(plan.rpdos), load_zero=zero)
+                           rpdos=plan.rpdos, rpdo_sent=[None] * len(plan.rpdos), load_zero=zero,
+                           polarity=cfg.polarity[i] if cfg.polarity else 1,
+                           count_ratio=cfg.count_ratio[i] if cfg.count_ratio else 1.0,
+                           load_gain=cfg.load_gain[i] if cfg.load_gain else 1.0,
+                           load_offset=cfg.load_offset[i] if cfg.load_offset else 0.0)
                 self._drives.append(d)
                 net.subscribe(plan.feedback.cob_id, self._tpdo_callback(d, plan.feedback))
                 self._subscribe_node(net, d)
@@ -392,7 +402,7 @@ class BootMixin:
                 for d, home in zip(self._drives, homes):
                     self._sdo(d, 0x6098, 0, method)
                     if self.plans[d.index].home_offset_on_drive:
-                        self._sdo(d, 0x607C, 0, home)
+                        self._sdo(d, 0x607C, 0, d.to_wire(home))
                 self._mode = int(OpMode.HOMING)
                 self._sdo_all(0x6060, 0, self._mode)
                 self._desired = State402.OPERATION_ENABLED
@@ -439,15 +449,21 @@ class BootMixin:
         ``home - reading`` to its positions (and takes it from its targets); the drive's
         software limits 607Dh are written in its own counts."""
         raw = self.scaling.to_counts(d.sample.position) - d.count_offset
+        shift = home_counts - raw - d.count_offset
         d.count_offset = home_counts - raw
+        # the sample in hand in the new counts too: the cycle holds the drive where its latest
+        # sample says, and a target from the old counts would be far outside 607Dh
+        d.sample.position += self.scaling.to_si(shift)
         d.recent.clear()
+        d.history.clear()
         plan = self.plans[d.index]
         lo, hi = self.limits.stroke_of(d.index)
         if plan.dictionary.writable(ObjectRef(0x607D, 1)) and plan.dictionary.writable(ObjectRef(0x607D, 2)) \
                 and lo > float('-inf') and hi < float('inf'):
             try:
-                self._sdo(d, 0x607D, 1, self.scaling.to_counts(lo) - d.count_offset)
-                self._sdo(d, 0x607D, 2, self.scaling.to_counts(hi) - d.count_offset)
+                low, high = sorted((d.to_wire(self.scaling.to_counts(lo)), d.to_wire(self.scaling.to_counts(hi))))
+                self._sdo(d, 0x607D, 1, low)
+                self._sdo(d, 0x607D, 2, high)
             except DriverOperationError as exc:
                 log.warning('%s: software position limits not written after homing: %s', d.name, exc)
         log.info('%s: no writable 607Ch; the master keeps the home offset (%d counts)', d.name,

@@ -155,8 +155,8 @@ class CycleMixin:
             # RPDO goes out when its content changes (every SYNC while moving) and every
             # RPDO_REFRESH SYNCs anyway; at rest only SYNC and the TPDOs are on the bus
             refresh = k % RPDO_REFRESH == 0
-            values = {'controlword': cw, 'target': d.target - d.count_offset,
-                      'velocity_offset': d.velocity_offset, 'mode': self._mode}
+            values = {'controlword': cw, 'target': d.to_wire(d.target),
+                      'velocity_offset': d.rate_to_wire(d.velocity_offset), 'mode': self._mode}
             for j, lay in enumerate(d.rpdos):
                 data = lay.codec.pack(*[values[r] for r in lay.roles])
                 if data != d.rpdo_sent[j] or refresh:

@@ -33,8 +33,9 @@ class ReceiveMixin:
 
     def _tpdo_callback(self, d: _Drive, layout: PdoLayout) -> Callable[[int, bytearray, float], None]:
         """The feedback TPDO of drive ``d``, decoded as planned (``layout``): statusword,
-        position actual (plus the offset the master keeps), load cell (from its zero; from
-        the load-cell module when one carries it)."""
+        position actual (in the master's counts: the drive's polarity and counts per revolution,
+        the offset the master keeps), load cell (from its zero, its gain and offset; from the
+        load-cell module when one carries it)."""
         codec = layout.codec
         unpack, size = codec.unpack_from, codec.size
         i_sw, i_pos, i_load = (layout.position_of('statusword'), layout.position_of('position'),
@@ -49,7 +50,7 @@ class ReceiveMixin:
             if len(data) < size:
                 return
             values = unpack(data)
-            sw, pos = values[i_sw], values[i_pos] + d.count_offset
+            sw, pos = values[i_sw], d.from_wire(values[i_pos])
             if i_load is not None:
                 load = values[i_load] - d.load_zero
             elif module is not None and module.loads:
@@ -62,7 +63,7 @@ class ReceiveMixin:
             prev = d.sample
             index, t = self._answered_sync(timestamp, None if prev is None else prev.sync_index)
             p = to_si(pos)
-            d.sample = Sample(sw, p, force_si(load), load, index, t)
+            d.sample = Sample(sw, p, (force_si(load) - d.load_offset) / d.load_gain, load, index, t)
             d.recent.append(d.sample)
             d.rx_time = time.perf_counter()
             d.samples += 1

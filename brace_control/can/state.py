@@ -26,7 +26,7 @@ from .pdo import LOAD_CELL_INPUT, TORQUE_ACTUAL
 from .plan import PdoLayout, PdoSpec, pdo_specs
 from .supervision import Fault, Limits, Sample
 from .timing import TimingReport
-from .units import AxisScaling, actuator_kind, scaling_from_config
+from .units import AxisScaling, actuator_kind, counts_ratios, per_actuator, scaling_from_config
 
 __all__ = ['MasterState', 'MasterConfig', 'LoadCellModule', 'load_cell_source', 'DriveStatus', 'BusStatus', 'MasterStatus',
            'Feedback', 'interpolation_period']
@@ -86,6 +86,14 @@ class MasterConfig:
     #: ``can.rpdo`` / ``can.tpdo`` of the YAML (``None``: docs/can.md's default mapping)
     rpdo: dict[int, PdoSpec] | None = None
     tpdo: dict[int, PdoSpec] | None = None
+    #: per drive: +1 / -1 (``actuator.polarity``: -1, the drive's counts grow as the actuator
+    #: shortens), its counts per the first drive's (``actuator.encoder_counts_per_rev``), and
+    #: its load cell's gain and offset (``actuator.load_cell_gain`` / ``_offset``: reading =
+    #: gain x force + offset); ``()``: +1, 1.0, 1.0, 0.0 for every drive
+    polarity: tuple[int, ...] = ()
+    count_ratio: tuple[float, ...] = ()
+    load_gain: tuple[float, ...] = ()
+    load_offset: tuple[float, ...] = ()
     sdo_timeout: float = 0.1          # s an SDO answer may take (``can.sdo_timeout``)
     sdo_retries: int = 1              # requests sent again after a time-out (``can.sdo_retries``)
     #: N/m (N·m/rad): each actuator's axial stiffness with its load path (``actuator.stiffness``);
@@ -129,6 +137,10 @@ class MasterConfig:
         if master_id in node_ids:
             raise ConfigError(f'parameter can.master_node_id = {master_id} collides with a drive id')
         eds = eds_files(dc, len(node_ids))
+        polarity = tuple(int(p) for p in per_actuator(dc.get_path('actuator.polarity'), len(node_ids),
+                                                       'actuator.polarity'))
+        if any(p not in (1, -1) for p in polarity):
+            raise ConfigError(f'parameter actuator.polarity = {list(polarity)}: expected +1 or -1 per actuator')
         cell, module = load_cell_source(dc)
         if module is not None and (module.node_id in node_ids or module.node_id == master_id):
             raise ConfigError(f'parameter can.load_cell_node.node_id = {module.node_id} is also a '
@@ -161,6 +173,11 @@ class MasterConfig:
             # linear actuators carry a load cell (2401h by default); rotary drives report
             # 6077h torque actual by default
             load_cell_object=cell, load_cell_module=module, rpdo=rpdo, tpdo=tpdo,
+            polarity=polarity, count_ratio=tuple(counts_ratios(dc)),
+            load_gain=tuple(float(g) for g in per_actuator(dc.get_path('actuator.load_cell_gain'),
+                                                            len(node_ids), 'actuator.load_cell_gain')),
+            load_offset=tuple(float(o) for o in per_actuator(dc.get_path('actuator.load_cell_offset'),
+                                                              len(node_ids), 'actuator.load_cell_offset')),
             sdo_timeout=float(dc.get_path('can.sdo_timeout')),
             sdo_retries=int(dc.get_path('can.sdo_retries')),
             stiffness=float(dc.get_path('actuator.stiffness')),
@@ -324,6 +341,22 @@ class _Drive(_Node):
     #: when the drive has no writable 607Ch
     count_offset: int = 0
     load_zero: int | float = 0             # the load-cell reading at zero force (counts)
+    polarity: int = 1                      # actuator.polarity
+    count_ratio: float = 1.0               # this drive's counts per the master's counts
+    load_gain: float = 1.0                 # actuator.load_cell_gain
+    load_offset: float = 0.0               # actuator.load_cell_offset (N or N·m)
+
+    def to_wire(self, counts: float) -> int:
+        """The master's counts (offset included) as this drive counts them."""
+        return self.polarity * round((counts - self.count_offset) * self.count_ratio)
+
+    def from_wire(self, raw: float) -> float:
+        """This drive's counts as the master's (offset included)."""
+        return self.polarity * raw / self.count_ratio + self.count_offset
+
+    def rate_to_wire(self, counts_per_s: float) -> int:
+        """A velocity (master counts/s) as this drive's."""
+        return self.polarity * round(counts_per_s * self.count_ratio)
     sample: Sample | None = None
     checked: Sample | None = None          # last sample the monitors saw
     history: deque = field(default_factory=lambda: deque(maxlen=6))   # (t, pos, sync index)

@@ -24,6 +24,7 @@ from typing import Any
 from ..config import ConfigError, as_device_config
 
 __all__ = ['AxisScaling', 'scaling_from_config', 'actuator_kind', 'rated_joint_torque', 'LoadInput',
+           'per_actuator', 'encoder_counts', 'counts_ratios',
            'INT16_MIN', 'INT16_MAX', 'INT32_MIN', 'INT32_MAX']
 
 INT16_MIN, INT16_MAX = -(1 << 15), (1 << 15) - 1
@@ -169,7 +170,7 @@ def scaling_from_config(cfg: Mapping[str, Any]) -> AxisScaling:
     """
     dc = as_device_config(cfg)
     act = dc.section('actuator')
-    cpr = int(act['encoder_counts_per_rev'])
+    cpr = encoder_counts(dc)[0]      # the first actuator's; the others by their ratio (counts_ratios)
     if actuator_kind(dc) == 'linear':
         if 'screw_lead' not in act:
             raise ConfigError("parameter 'actuator.screw_lead' is missing (m per motor revolution of "
@@ -186,6 +187,41 @@ def scaling_from_config(cfg: Mapping[str, Any]) -> AxisScaling:
     return AxisScaling.rotary(encoder_counts_per_rev=cpr, gear_ratio=gear,
                               newton_metre_per_count=float(act['load_cell_n_per_count']),
                               rated_torque_nm=float(act['load_cell_rated_force']))
+
+
+def per_actuator(value: Any, n: int, name: str) -> list:
+    """A parameter given once for all actuators or once per actuator, as ``n`` values.
+
+    :raises ConfigError: a list of another length, naming ``name``.
+    """
+    values = list(value) if isinstance(value, (list, tuple)) else [value]
+    if len(values) == 1:
+        return values * n
+    if len(values) != n:
+        raise ConfigError(f'parameter {name} = {values}: one value for all actuators or {n} (one per '
+                          f'actuator), got {len(values)}')
+    return values
+
+
+def _n_actuators(dc: Any) -> int:
+    ids = dc.get_path('can.node_ids', None)
+    if ids is not None:
+        return len(ids)
+    names = dc.get_path('mechanism.actuator_names', None)
+    return len(names) if names else 1
+
+
+def encoder_counts(cfg: Mapping[str, Any], key: str = 'actuator.encoder_counts_per_rev') -> list[int]:
+    """Each actuator's encoder counts per revolution (``actuator.encoder_counts_per_rev``,
+    one for all or per actuator)."""
+    dc = as_device_config(cfg)
+    return [int(v) for v in per_actuator(dc.get_path(key), _n_actuators(dc), key)]
+
+
+def counts_ratios(cfg: Mapping[str, Any]) -> list[float]:
+    """Each drive's counts per the first drive's (the scaling's): 1.0 unless the encoders differ."""
+    cprs = encoder_counts(cfg)
+    return [c / cprs[0] for c in cprs]
 
 
 def rated_joint_torque(cfg: Mapping[str, Any]) -> float:

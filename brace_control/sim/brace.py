@@ -92,8 +92,10 @@ import numpy as np
 
 from ..can.dictionary import ObjectRef, eds_files
 from ..can.state import load_cell_source
+from ..can.units import encoder_counts, per_actuator
+from .device import SimulatedDevice
 from ..can.units import actuator_kind, scaling_from_config
-from ..config import ConfigError, DeviceConfig, load_device_config
+from ..config import ConfigError, DeviceConfig, config_dir, load_device_config
 from ..mechanisms import mechanism_from_config
 from ..mechanisms.planar_floats import PlanarRprFloats
 from .drive import DriveLimits, SimulatedDrive
@@ -211,10 +213,30 @@ class SimulatedBrace:
         self.config = cfg
         self.mechanism = mechanism if mechanism is not None else mechanism_from_config(cfg)
         can_cfg, act, sim = cfg.section('can'), cfg.section('actuator'), cfg.section('sim')
-        self.node_ids: tuple[int, ...] = tuple(int(i) for i in cfg.get_path('can.node_ids'))
+        believed = tuple(int(i) for i in cfg.get_path('can.node_ids'))
         n = self.mechanism.n_actuators
-        if len(self.node_ids) != n:
-            raise ConfigError(f'can.node_ids has {len(self.node_ids)} ids for {n} actuators')
+        if len(believed) != n:
+            raise ConfigError(f'can.node_ids has {len(believed)} ids for {n} actuators')
+        # the hardware as it really is (sim.*: docs/commissioning.md), by default as believed
+        #: the node ids the drives really have, in actuator order (0: not on the bus)
+        self.node_ids: tuple[int, ...] = tuple(int(i) for i in per_actuator(
+            sim.get('node_ids') or list(believed), n, 'sim.node_ids'))
+        real = [i for i in self.node_ids if i]
+        if len(set(real)) != len(real):
+            raise ConfigError(f'sim.node_ids = {list(self.node_ids)}: two drives with one node id')
+        polarity = [int(p) for p in per_actuator(sim.get('polarity', 1), n, 'sim.polarity')]
+        if any(p not in (1, -1) for p in polarity):
+            raise ConfigError(f'sim.polarity = {polarity}: +1 or -1 per actuator')
+        true_cpr = encoder_counts(cfg, 'sim.encoder_counts_per_rev' if sim.get('encoder_counts_per_rev')
+                                  else 'actuator.encoder_counts_per_rev')
+        believed_cpr = encoder_counts(cfg)[0]
+        #: each load cell's gain and offset (reading = gain x force + offset + noise), N or N·m
+        self.load_cell_gain = np.array(per_actuator(sim.get('load_cell_gain', 1.0), n, 'sim.load_cell_gain'), float)
+        self.load_cell_offset = np.array(per_actuator(sim.get('load_cell_offset', 0.0), n, 'sim.load_cell_offset'), float)
+        #: a known force on each load cell (N or N·m): the reference load of a calibration
+        #: (brace-commission calibrate-load-cell), a weight hung along the leg
+        self.reference_load = [0.0] * n
+        self._gains, self._offsets = self.load_cell_gain.tolist(), self.load_cell_offset.tolist()
         # the drives' dictionaries, one per drive (can.eds: one file, or a list)
         if eds is None:
             eds_paths = list(eds_files(cfg, n))
@@ -250,7 +272,6 @@ class SimulatedBrace:
         self._init_patient(sim)
         self._body = self.body_at(0.0)
         self.noise_n = float(sim['load_cell_noise'])
-        self.offset_n = float(sim['load_cell_offset'])
         self._rng = np.random.default_rng(int(sim['seed'] if seed is None else seed))
         self._noise_block: list[list[float]] = []
         q0 = self.mechanism.inverse(self.mechanism.home_pose)
@@ -288,17 +309,20 @@ class SimulatedBrace:
         self.drives: list[SimulatedDrive] = []
         #: position-loop bandwidth of the simulated drives (Hz), ``sim.drive_bandwidth_hz``
         self.drive_bandwidth_hz = float(sim['drive_bandwidth_hz'])   # range: the schema
+        #: each drive's true encoder counts per actuator unit (sim.encoder_counts_per_rev)
+        self.drive_counts_per_m = np.array([self.counts_per_m * c / believed_cpr for c in true_cpr])
         for i, node_id in enumerate(self.node_ids):
             limits = DriveLimits(
-                counts_per_m=self.counts_per_m, max_velocity=float(act['max_velocity']),
+                counts_per_m=float(self.drive_counts_per_m[i]), max_velocity=float(act['max_velocity']),
                 max_acceleration=float(act['max_acceleration']),
                 stroke_min=float(lo[i]), stroke_max=float(hi[i]),
                 # 6077h torque actual is in per mille of this (rotary: the rated torque)
                 max_force=self.rated_force if self.rotary else float(act['max_force']))
-            self.drives.append(SimulatedDrive(node_id, eds_paths[i], limits=limits,
+            self.drives.append(SimulatedDrive(node_id or believed[i], eds_paths[i], limits=limits,
                                               initial_length_m=float(q0[i]),
                                               bandwidth_hz=self.drive_bandwidth_hz,
-                                              load_cell=(load_cell.index, load_cell.subindex)))
+                                              load_cell=(load_cell.index, load_cell.subindex),
+                                              polarity=polarity[i]))
         #: the CiA 401 module carrying the load cells (``can.load_cell_node``), or None
         self.module: SimulatedAnalogModule | None = None
         if module is not None:
@@ -310,10 +334,16 @@ class SimulatedBrace:
         self.host = SimBus(channel or str(can_cfg['channel']),
                            interface=interface or str(can_cfg['interface']),
                            sync_handler=self._on_sync, dt_source=dt_source)
-        for d in self.drives:
-            self.host.add(d)
+        for d, node_id in zip(self.drives, self.node_ids):
+            if node_id:                           # 0: the drive does not answer (not on the bus)
+                self.host.add(d)
         if self.module is not None:
             self.host.add(self.module)
+        #: foreign nodes on the bus (sim.extra_node_ids): CiA 401 I/O modules
+        self.extra_nodes = [SimulatedDevice(int(i), config_dir() / 'analog_input_module.eds')
+                            for i in (sim.get('extra_node_ids') or [])]
+        for extra in self.extra_nodes:
+            self.host.add(extra)
         self.lock = threading.Lock()
         self._pose = np.asarray(self.mechanism.home_pose, dtype=float).copy()
         self._f_unloaded = np.zeros(n)             # efforts holding the mechanism itself (see _rigid)
@@ -540,8 +570,9 @@ class SimulatedBrace:
         return pose, f
 
     def lengths_to_counts(self, lengths_m: np.ndarray) -> np.ndarray:
-        """Homed encoder counts of actuator lengths (counts = floor(length * counts/m))."""
-        return np.floor(np.asarray(lengths_m, dtype=float) * self.counts_per_m).astype(np.int64)
+        """Homed encoder counts of actuator lengths (counts = floor(length * counts/m), each
+        drive's own counts per m)."""
+        return np.floor(np.asarray(lengths_m, dtype=float) * self.drive_counts_per_m).astype(np.int64)
 
     # ------------------------------------------------------------------ SYNC
 
@@ -818,9 +849,12 @@ class SimulatedBrace:
         noise = self._noise() if self.noise_n > 0.0 else [0.0] * len(self.drives)
         rated, to_counts = self.rated_force, self._scaling.force_to_counts
         counts_l = []
+        gains, offsets, ref = self._gains, self._offsets, self.reference_load
         for i, (d, fi, (sink, k, load)) in enumerate(zip(self.drives, forces_l, self._load_sinks)):
             ov = self.load_cell_override[i]
-            reading = fi + self.offset_n + noise[i] if ov is None else ov
+            reading = gains[i] * (fi + ref[i]) + offsets[i] + noise[i] if ov is None else ov
+            if self.rotary and d.polarity < 0:
+                reading = -reading                   # the drive's torque, in its own sense
             reading = min(max(reading, -rated), rated)       # saturation at full scale
             # quantisation and the input's range (INTEGER16: 0 N at 0; UNSIGNED16: mid-scale)
             c = to_counts(reading, load)

@@ -381,10 +381,19 @@ class SimulatedDevice:
             subs = [obj] if isinstance(obj, odmod.ODVariable) else list(obj.values())
             for var in subs:
                 val = var.value if var.value is not None else var.default
+                if val is None and var.data_type in odmod.NUMBER_TYPES:
+                    val = 0                               # a number the file leaves unset
                 if isinstance(val, (int, bool, float)):
                     out[(var.index, var.subindex)] = val if isinstance(val, float) else int(val)
                 elif isinstance(val, (str, bytes)):
                     out[(var.index, var.subindex)] = val   # type: ignore[assignment]
+        # the identity (1018h) a real device answers: the file's [DeviceInfo] where its 1018h
+        # defaults say nothing, and a serial number of its own
+        info = self.od.device_information
+        for sub, value in ((1, info.vendor_number), (2, info.product_number), (3, info.revision_number),
+                           (4, 0x5E000000 + self.node_id)):
+            if (0x1018, sub) in out and not out[(0x1018, sub)] and value:
+                out[(0x1018, sub)] = int(value)
         return out
 
     def _reset_application(self) -> None:

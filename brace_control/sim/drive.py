@@ -162,7 +162,12 @@ class SimulatedDrive(SimulatedDevice):
                  send: Callable[[int, bytes], None] | None = None,
                  clock: Callable[[], float] = time.monotonic,
                  bandwidth_hz: float = DEFAULT_BANDWIDTH_HZ,
-                 load_cell: tuple[int, int] = (LOAD_CELL_INPUT, 0)) -> None:
+                 load_cell: tuple[int, int] = (LOAD_CELL_INPUT, 0), polarity: int = 1) -> None:
+        if polarity not in (1, -1):
+            raise ValueError(f'polarity must be +1 or -1, got {polarity!r}')
+        #: +1, or -1: the encoder counts down as the actuator lengthens (its motor wired the
+        #: other way round); the drive's position loop works on its own counts either way
+        self.polarity = int(polarity)
         if isinstance(bandwidth_hz, bool) or not isinstance(bandwidth_hz, (int, float)) \
                 or not math.isfinite(bandwidth_hz) or bandwidth_hz <= 0.0:
             raise ValueError(f'position-loop bandwidth must be a positive number of Hz, '
@@ -365,11 +370,11 @@ class SimulatedDrive(SimulatedDevice):
         if index == 0x6062:
             return self._length_to_counts(self._demand_m)
         if index == 0x606C:
-            return round(self.velocity_mps * self._cpm)
+            return round(self.polarity * self.velocity_mps * self._cpm)
         if index == 0x60F4:
             return self._fe_counts
         if index == 0x6077:
-            return max(-32768, min(32767, round(1000.0 * self.force_n / self.limits.max_force)))
+            return max(-32768, min(32767, round(self.polarity * 1000.0 * self.force_n / self.limits.max_force)))
         if index == 0x603F:
             return self._error_code
         if index == 0x6040:
@@ -558,14 +563,14 @@ class SimulatedDrive(SimulatedDevice):
 
     def _length_to_counts(self, length_m: float) -> int:
         """The (homed) encoder count a length falls in."""
-        return math.floor(length_m * self._cpm) - self._enc_zero + self._home_shift
+        return self.polarity * (math.floor(length_m * self._cpm) - self._enc_zero) + self._home_shift
 
     def _true_position_counts(self) -> int:
         return self._length_to_counts(self.length_m)
 
     def _counts_to_length(self, counts: int) -> float:
         """The length at the centre of an encoder count (what the drive's loop aims at)."""
-        return (counts - self._home_shift + self._enc_zero + 0.5) / self._cpm
+        return (self.polarity * (counts - self._home_shift) + self._enc_zero + 0.5) / self._cpm
 
     def _target_in_limits(self) -> bool:
         lo, hi = self._store[(0x607D, 1)], self._store[(0x607D, 2)]
@@ -598,7 +603,7 @@ class SimulatedDrive(SimulatedDevice):
             self._seg_period_s = self._sync_dt
         if self._ff_mapped:
             self._vff_from = self._vff_to
-            self._vff_to = self._store[(0x60B1, 0)] / self._cpm
+            self._vff_to = self.polarity * self._store[(0x60B1, 0)] / self._cpm
         else:
             period = self._seg_period_s
             slope = (self._seg_to_m - self._seg_from_m) / period if period > 0.0 else 0.0
