@@ -564,6 +564,23 @@ def test_processes_goals_end_honestly_against_the_truth(device_file, as_processe
     group, node, probe = as_processes
     _replay_goals(node, tmp_path, GOALS, 'brace_base')
     check_honest_outcomes(Device(device_file), probe)
+    check_late_subscriber_gets_every_outcome(node, probe)
+
+
+def check_late_subscriber_gets_every_outcome(node, probe) -> None:
+    """A client that subscribes after the goals ended (transient local, topics.GOAL_STATUS_QOS)
+    still receives every goal's terminal status (issue 26): the same states the probe saw live."""
+    ended = {e['goal_id']: e['state'] for e in probe.terminal()}
+    assert ended
+    late: list = []
+    sub = node.create_subscription(DiagnosticStatus, topics.GOAL_STATUS, late.append, topics.GOAL_STATUS_QOS)
+    try:
+        def got() -> dict:
+            vals = [dict(status_values(m), state=m.message) for m in list(late)]
+            return {v['goal_id']: v['state'] for v in vals if v['state'] != 'accepted'}
+        probe.wait(lambda: got() == ended, 10, f'the late subscriber to receive {ended}')
+    finally:
+        node.destroy_subscription(sub)
 
 
 def test_processes_unreachable_and_nan_goals_are_rejected_without_motion(device_file, as_processes, tmp_path):

@@ -119,7 +119,7 @@ class InteractionNode(Node):
         self._session = 0
         self._goal_ids = itertools.count(1)
         self._last_goal_name = ''
-        self._status_pub = self.create_publisher(DiagnosticStatus, topics.GOAL_STATUS, topics.STATUS_QOS)
+        self._status_pub = self.create_publisher(DiagnosticStatus, topics.GOAL_STATUS, topics.GOAL_STATUS_QOS)
         self._goal_pub = self.create_publisher(WrenchStamped, topics.INTERACTION_GOAL, topics.GOAL_QOS)
         self.create_subscription(PoseStamped, topics.POSE, self._on_pose, topics.MEASURED_QOS, raw=True)
         self.create_subscription(WrenchStamped, topics.WRENCH_GOAL, self._on_goal, topics.GOAL_QOS)

@@ -13,6 +13,7 @@ __all__ = [
     'GOAL_STATUS', 'EXECUTION_STATUS', 'DRIVER_STATE', 'DIAGNOSTICS', 'SIM_JOINT_STATES',
     'SIM_POSE', 'SIM_WRENCH', 'WRENCH_GOAL', 'INTERACTION_GOAL', 'SIM_BODY_REST', 'SIM_BODY_POSE',
     'GOAL_QOS', 'TRAJECTORY_QOS', 'SETPOINT_QOS', 'STATE_QOS', 'MEASURED_QOS', 'STATUS_QOS',
+    'GOAL_STATUS_QOS', 'GOAL_STATUS_DEPTH',
     'LATCHED_QOS', 'DIAGNOSTICS_QOS',
 ]
 
@@ -96,6 +97,15 @@ MEASURED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
 #: Events (goal and execution status): reliable, keep all. A goal flood makes hundreds of
 #: events at once; a keep-last history would overwrite some before they are delivered.
 STATUS_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
+#: Goal outcomes (``/brace/goal_status``): reliable, and transient local with the last
+#: :data:`GOAL_STATUS_DEPTH` events kept, so a client that joins late, or whose reader matched
+#: after an event was written, still gets the outcome of every recent goal (subscribe with
+#: ``GOAL_STATUS_QOS``: a volatile subscriber gets only what is written after it matched).
+#: The depth covers a flood of goals: each goal has 2-3 events, and the goal queue holds one.
+GOAL_STATUS_DEPTH = 1000
+GOAL_STATUS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=GOAL_STATUS_DEPTH,
+                             reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
 #: State that a late subscriber must see at once (the driver's state): transient local,
 #: the last sample kept.
 LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,

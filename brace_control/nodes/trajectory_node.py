@@ -139,7 +139,7 @@ class TrajectoryNode(Node):
 
         self._traj_pub = self.create_publisher(MultiDOFJointTrajectory, topics.POSE_TRAJECTORY,
                                                topics.TRAJECTORY_QOS)
-        self._status_pub = self.create_publisher(DiagnosticStatus, topics.GOAL_STATUS, topics.STATUS_QOS)
+        self._status_pub = self.create_publisher(DiagnosticStatus, topics.GOAL_STATUS, topics.GOAL_STATUS_QOS)
         # raw: a goal whose bytes do not deserialise (a corrupted bag, a foreign publisher)
         # still gets its goal id and a rejected status saying why (rclpy would drop it unseen)
         self.create_subscription(PoseStamped, topics.POSE_GOAL, self._raw(PoseStamped, self._on_goal, 'pose_goal'),
