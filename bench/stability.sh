@@ -2,8 +2,13 @@
 # Stability loop (issue 11): the end-to-end suites N times in a row on this machine.
 #
 #   bench/stability.sh [runs=10] [pytest args...]
-#   e.g. bench/stability.sh 10            # test/test_e2e.py test/test_devices_e2e.py
+#   e.g. bench/stability.sh 10            # the e2e suites and the operator soak, full length
 #        bench/stability.sh 5 test/test_operator.py
+#
+# The soaks run at full length here (issue 26): the suite runs the first 6 goals of each
+# seeded random-goal soak and 20 s of the seeded random operator; this script the 20 goals
+# (BRACE_SOAK_GOALS) and 60 s (BRACE_OPERATOR_SECONDS), same seeds, same checks. Run it and
+# record it in bench/RESULTS.md before a stop that touches the execution path.
 #
 # Each run is a fresh pytest process (its own ROS_DOMAIN_ID, test/conftest.py). Prints one
 # line per run (exit code, passed/failed counts, seconds, load average) and a summary; the
@@ -14,7 +19,9 @@ cd "$(dirname "$0")/.."
 runs="${1:-10}"
 shift || true
 tests=("$@")
-[ ${#tests[@]} -eq 0 ] && tests=(test/test_e2e.py test/test_devices_e2e.py)
+[ ${#tests[@]} -eq 0 ] && tests=(test/test_e2e.py test/test_devices_e2e.py test/test_operator_property.py)
+export BRACE_SOAK_GOALS="${BRACE_SOAK_GOALS:-20}"
+export BRACE_OPERATOR_SECONDS="${BRACE_OPERATOR_SECONDS:-60}"
 export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
 py=.venv/bin/python
 [ -x "$py" ] || py=python3

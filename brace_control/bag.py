@@ -1091,6 +1091,8 @@ def _run_ros(args: argparse.Namespace, ros_args: list[str]) -> int:
     import rclpy
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 
+    from .nodes.spin import spin_once
+
     rclpy.init(args=['brace-bag', *ros_args])
     node = rclpy.create_node('brace_bag')
     stop = threading.Event()
@@ -1153,7 +1155,7 @@ def _run_ros(args: argparse.Namespace, ros_args: list[str]) -> int:
         t_end = None if args.duration is None else time.monotonic() + args.duration
         try:
             while not stop.is_set() and (t_end is None or time.monotonic() < t_end):
-                executor.spin_once(timeout_sec=0.05)
+                spin_once(executor, 0.05)                 # nodes/spin.py
         except ExternalShutdownException:
             pass
         out = recorder.close()
@@ -1181,11 +1183,9 @@ def _run_ros(args: argparse.Namespace, ros_args: list[str]) -> int:
 
 
 def _spin_until(executor: Any, stop: threading.Event) -> None:
-    while not stop.is_set():
-        try:
-            executor.spin_once(timeout_sec=0.05)
-        except Exception:  # noqa: BLE001 - shutting down
-            return
+    # the replay destroys its publishers while this thread spins: nodes/spin.py
+    from .nodes.spin import spin_until
+    spin_until(executor, stop, period_s=0.05)
 
 
 if __name__ == '__main__':

@@ -371,13 +371,10 @@ class BringUp:
 
     def _spin(self, executor: Any) -> None:
         # spin_once in a loop, not spin(): rclpy's events executor (Kilted) busy-waits a
-        # core in spin() and blocks other threads adding entities to its nodes meanwhile
-        from rclpy.executors import ExternalShutdownException
-        try:
-            while not self._stop.is_set() and executor.context.ok():
-                executor.spin_once(timeout_sec=0.1)
-        except ExternalShutdownException:
-            pass
+        # core in spin() and blocks other threads adding entities to its nodes meanwhile;
+        # and a helper's client destroyed meanwhile must not end the loop (nodes/spin.py)
+        from .nodes.spin import spin_until
+        spin_until(executor, self._stop)
 
     def call(self, service: str, *, timeout: float = 5.0) -> tuple[bool, str]:
         """Call a Trigger service (``/can_driver_node/enable`` ...) while the nodes spin."""

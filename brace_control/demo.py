@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from .nodes.spin import BackgroundSpinner
 from .nodes import topics
 
 __all__ = ['main', 'prepare_config', 'RECORDED_TOPICS']
@@ -236,7 +237,7 @@ def run_demo(device: str, out: Path, *, rate: float = 1.0, settle: float = 3.0,
     node = rclpy.create_node('brace_demo')
     executor = SingleThreadedExecutor()
     executor.add_node(node)
-    threading.Thread(target=executor.spin, daemon=True, name='demo-executor').start()
+    BackgroundSpinner(executor, 'demo-executor').start()     # nodes/spin.py
     watch = _Watch(node)
     try:
         t0 = time.monotonic()

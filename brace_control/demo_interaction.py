@@ -44,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from .nodes.spin import BackgroundSpinner
 from .nodes import topics
 
 __all__ = ['INTERACTION_TOPICS', 'Script', 'plan_script', 'run_interaction_demo', 'PATIENT_RATE_HZ']
@@ -433,7 +434,7 @@ def run_interaction_demo(device: str, out: Path, *, processes: bool = True,
     node = rclpy.create_node('brace_demo')
     executor = SingleThreadedExecutor()
     executor.add_node(node)
-    threading.Thread(target=executor.spin, daemon=True, name='demo-executor').start()
+    BackgroundSpinner(executor, 'demo-executor').start()     # nodes/spin.py
     patient = _Patient(node, mech, cfg['base_frame'])
     try:
         t0 = time.monotonic()

@@ -16,7 +16,9 @@ from sensor_msgs.msg import JointState
 from brace_control.bringup import BringUp, find_executable, node_class
 from brace_control.nodes.ik_node import IkNode
 from brace_control.nodes.msgs import pose_msg
+from brace_control.nodes.spin import BackgroundSpinner
 from ros_helpers import LUMBAR_YAML, REPO, RELIABLE_10
+
 
 MY_NODES = ['ik_node', 'kinetics_node']
 
@@ -130,8 +132,6 @@ def test_call_trigger_asks_an_idempotent_service_again_when_its_answer_is_lost(s
     it: the new client's reader not yet matched): ``call_trigger`` sends ``home``,
     ``enable`` or ``disable`` again and returns the second answer; anything else it reports
     unanswered."""
-    import threading
-
     from rclpy.callback_groups import ReentrantCallbackGroup
     from rclpy.executors import MultiThreadedExecutor
     from rclpy.task import Future
@@ -157,7 +157,7 @@ def test_call_trigger_asks_an_idempotent_service_again_when_its_answer_is_lost(s
         executor = MultiThreadedExecutor(context=ctx)
         executor.add_node(server)
         executor.add_node(client)
-        threading.Thread(target=executor.spin, daemon=True).start()
+        BackgroundSpinner(executor).start()
         ok, message = call_trigger(client, f'/lossy_server/{service}', timeout=3.0, executor=executor)
         assert ok is outcome[0] and outcome[1] in message, message
         assert len(requests) == asked
@@ -203,7 +203,7 @@ def test_call_trigger_returns_a_slow_first_answer_not_the_repeat_served_after_it
         executors[0].add_node(server)
         executors[1].add_node(client)
         for e in executors:
-            threading.Thread(target=e.spin, daemon=True).start()
+            BackgroundSpinner(e).start()
         ok, message = call_trigger(client, '/slow_server/enable', timeout=RESEND_S + 3.0,
                                    executor=executors[1])
         assert ok and message == 'OPERATION ENABLED; cables taken up', message

@@ -15,7 +15,6 @@ rest)`` at the TRUE head pose (``/brace/sim/pose``), with K and rest read from t
 """
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np

@@ -22,6 +22,8 @@ import pytest
 import yaml
 
 from brace_control.can.framelog import read_frames
+from brace_control.nodes.spin import BackgroundSpinner
+
 
 REPO = Path(__file__).resolve().parent.parent
 LUMBAR = REPO / 'config' / 'lumbar_brace.yaml'
@@ -76,7 +78,6 @@ def test_bringup_ended_mid_motion_ends_every_node_with_the_drives_stopped(ros, t
     terminal, an SSH drop) or SIGKILL of the bring-up. Every node process is gone within 2 s
     of the bring-up's end, and the bus's own log ends with every drive commanded to stop
     (disable voltage or quick stop) and answering SWITCH ON DISABLED or QUICK STOP ACTIVE."""
-    import threading
 
     import rclpy
     from geometry_msgs.msg import PoseStamped
@@ -97,8 +98,7 @@ def test_bringup_ended_mid_motion_ends_every_node_with_the_drives_stopped(ros, t
     node = rclpy.create_node(f'probe_{tag}', context=ros.context)
     executor = SingleThreadedExecutor(context=ros.context)
     executor.add_node(node)
-    spinner = threading.Thread(target=executor.spin, daemon=True)
-    spinner.start()
+    BackgroundSpinner(executor, 'probe-executor').start()
     joints: list = []
     node.create_subscription(JointState, topics.JOINT_STATES, joints.append, 10)
     try:

@@ -5,7 +5,9 @@ disable it mid-goal, stall the driver's host, send a huge path, storm it with go
 flood, home or recover at the wrong moment, drive it with a broken setpoint stream, shut it
 down mid-goal, or let the patient load it into a protective stop. Every node runs as its
 own process (:func:`operator_stack`, the executables ``ros2 run`` starts) on a simulated
-CiA 402 bus.
+CiA 402 bus. The tests here share one stack (:func:`operator_session`), reset to a fresh
+bring-up's state and checked before each test (:func:`op`); the two that need a stack of
+their own (a shutdown, other safety parameters) are in ``test_operator_alone.py``.
 
 What each test asserts, never from the code under test:
 
@@ -29,7 +31,6 @@ import contextlib
 import os
 import re
 import signal
-import threading
 import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -47,6 +48,7 @@ from sensor_msgs.msg import JointState
 from brace_control.bringup import ProcessBringUp, call_trigger, wait_for_links, wait_until_ready
 from brace_control.nodes import topics
 from brace_control.nodes.msgs import joint_state, ns_to_stamp, pose_msg, stamp_to_ns, status_values
+from brace_control.nodes.spin import BackgroundSpinner
 from test_e2e import (DEG, Device, Probe, _extra_args, _planar, check_no_stop, check_self_stress,
                       check_still, check_succeeded_goals_are_true, device_file)  # noqa: F401 (fixture)
 
@@ -74,6 +76,7 @@ class Operator:
     def __init__(self, group: ProcessBringUp, node, probe: Probe, dev: Device) -> None:
         self.group, self.node, self.probe, self.dev = group, node, probe, dev
         self.sent = 0
+        self.first = 1                                  # the current test's first goal id
         self.safety: list[DiagnosticStatus] = []       # the driver's .../safety statuses
         self.execution: list[dict] = []                 # /brace/execution_status (evidence)
         node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._on_diagnostics, 50)
@@ -92,6 +95,15 @@ class Operator:
         with self.probe.lock:
             self.execution.append(dict(status_values(msg), name=msg.name, message=msg.message,
                                        arrival=time.monotonic()))
+
+    def forget(self) -> None:
+        """Forget what was seen so far (between tests on a shared stack): the next goal id
+        becomes :attr:`first`; the probe keeps only the driver's current (latched) state."""
+        with self.probe.lock:
+            self.safety.clear()
+            self.execution.clear()
+        self.probe.forget()
+        self.first = self.sent + 1
 
     def execution_log(self) -> list[tuple[str, str, str]]:
         """What the ik node and the driver said about each trajectory (for failure messages)."""
@@ -247,10 +259,12 @@ class Operator:
         return end
 
 
-def check_one_end_each(op: Operator, first: int = 1, last: int | None = None) -> list[dict]:
-    """Goals ``first``..``last`` each have exactly one terminal status, their first event
-    ``accepted`` or ``rejected`` (README: "Every goal ends in exactly one reported state");
-    the terminal statuses in goal order."""
+def check_one_end_each(op: Operator, first: int | None = None, last: int | None = None) -> list[dict]:
+    """Goals ``first``..``last`` (default: the current test's, :attr:`Operator.first` to the
+    last sent) each have exactly one terminal status, their first event ``accepted`` or
+    ``rejected`` (README: "Every goal ends in exactly one reported state"); the terminal
+    statuses in goal order."""
+    first = op.first if first is None else first
     last = op.sent if last is None else last
     events = op.probe.events()
     ends = []
@@ -262,7 +276,7 @@ def check_one_end_each(op: Operator, first: int = 1, last: int | None = None) ->
         assert len(terminal) == 1, (gid, [(e['state'], e['reason']) for e in terminal])
         ends.append(terminal[0])
     ids = {e['goal_id'] for e in events}
-    assert ids <= set(map(str, range(1, op.sent + 1))), f'statuses of goals never sent: {ids}'
+    assert ids <= set(map(str, range(op.first, op.sent + 1))), f'statuses of goals never sent: {ids}'
     return ends
 
 
@@ -316,8 +330,7 @@ def operator_stack(device_file: Path, extra_args: Sequence[str] = ()) -> Iterato
     node = rclpy.create_node('operator_probe', context=ctx)
     executor = SingleThreadedExecutor(context=ctx)
     executor.add_node(node)
-    spinner = threading.Thread(target=executor.spin, daemon=True)
-    spinner.start()
+    BackgroundSpinner(executor, 'probe-executor').start()
     probe = Probe(node)
     op = Operator(group, node, probe, Device(device_file))
     try:
@@ -343,10 +356,40 @@ def operator_stack(device_file: Path, extra_args: Sequence[str] = ()) -> Iterato
     assert all(c == 0 for c in codes.values()), {n: c for n, c in codes.items() if c != 0}
 
 
-@pytest.fixture
-def op(device_file) -> Iterator[Operator]:
+@pytest.fixture(scope='module')
+def operator_session(device_file) -> Iterator[Operator]:
+    """One stack for the module's tests that need only a clean state (see :func:`op`)."""
     with operator_stack(device_file) as running:
         yield running
+
+
+@pytest.fixture
+def op(operator_session: Operator) -> Iterator[Operator]:
+    """The module's stack, reset to the state a fresh bring-up leaves, and checked: no node
+    process ended, any latched stop relieved and recovered, the drives enabled, a goal to
+    the home pose succeeded with the TRUE ring on it and at rest there, every earlier goal
+    ended; then the probe forgets what it saw, so the test judges only its own goals,
+    statuses and truth (:meth:`reset_for_test`)."""
+    reset_for_test(operator_session)
+    yield operator_session
+
+
+def reset_for_test(op: Operator) -> None:
+    """Bring a shared stack back to a fresh bring-up's state, checked (see :func:`op`)."""
+    assert not op.group.failed(), f'a node process ended: {op.group.failed()}'
+    if op.sent >= op.first:
+        # the previous test's goals all ended (a goal still running would move the ring
+        # under the next test)
+        op.wait(lambda: all(any(e['state'] != 'accepted' for e in op.events(str(g)))
+                            for g in range(op.first, op.sent + 1)), 30, 'the earlier goals to end')
+    op.wait_rest(timeout=15)
+    if op.state().startswith('protective stop') and any(
+            w in op.state() for w in ('force limit', 'wrench', 'saturat')):
+        op.driver('relieve')
+    if not op.state().startswith('enabled'):
+        recover_and_enable(op)
+    op.goal_succeeds(op.dev.home)
+    op.forget()
 
 
 def recover_and_enable(op: Operator, timeout: float = 10.0) -> list[str]:
@@ -624,83 +667,3 @@ def test_setpoint_stream_frozen_stamps_rejected_and_a_stamp_jump_latches_a_step_
     recover_and_enable(op)
     op.goal_succeeds(SAFE_GOALS[0])
     check_one_end_each(op)
-
-
-# ----------------------------------------------------------------------------- 11: shutdown
-
-def test_shutdown_with_a_running_goal_aborts_it_without_a_traceback(device_file, capfd):
-    """Stop the process group (SIGINT, as ``brace-bringup --processes`` does) while a goal
-    runs: that goal is reported aborted with a shutdown / driver-stopped reason (collected
-    until the trajectory node is gone), every node exits 0, no node printed a traceback
-    (their stderr is this test's file descriptor 2, captured by ``capfd``)."""
-    with operator_stack(device_file) as op:
-        start = op.true_lengths()
-        target = SAFE_GOALS[2]
-        gid = op.goal(target)
-        op.wait_travel(start, target, 0.3)
-        codes = op.group.stop()
-        assert all(c == 0 for c in codes.values()), {n: c for n, c in codes.items() if c != 0}
-        end = op.end(gid, timeout=5)
-        assert end['state'] == 'aborted', end
-        assert 'shutdown' in end['reason'] or 'stopped' in end['reason'], end
-        check_one_end_each(op)
-    err = capfd.readouterr().err
-    print(f'shutdown: goal {end["goal_id"]} {end["state"]}: {end["reason"]}')
-    assert f'[trajectory_node]: goal {gid} aborted' in err, 'the nodes\' stderr was not captured'
-    assert 'Traceback' not in err, err[max(0, err.index('Traceback') - 2000):][:6000]
-
-
-# ----------------------------------------------------------------------------- 12: loaded stop, relief
-
-#: N: the hard force limit of this test (soft 16 N, release 4 N): the patient sinking 20 mm
-#: loads each leg with ~27 N (Device.static_forces), the YAML's 250 N would need 190 mm
-FORCE_LIMIT = 20.0
-SINK = 0.020
-
-
-def test_loaded_protective_stop_is_relieved_then_recovered(device_file):
-    """The patient sinks 20 mm while the brace holds: the legs pass ``safety.force_limit``
-    and a protective stop latches (driver_state). ``~/recover`` is refused (cause present);
-    ``~/relieve`` backs off until the TRUE forces are below ``safety.release_force``;
-    ``~/recover`` then succeeds, ``~/enable``; the patient rises back to rest in steps the
-    brace follows (each step loads the legs below the soft limit), and a safe goal with
-    the body back at rest succeeds."""
-    with operator_stack(device_file, ['-p', f'safety.force_limit:={FORCE_LIMIT}']) as op:
-        dev = op.dev
-        release, soft = 0.2 * FORCE_LIMIT, 0.8 * FORCE_LIMIT
-        rest = dev.rest.copy()
-        sunk = rest - np.array([0.0, SINK, 0.0])
-        dev.rest = sunk
-        _, f = dev.static_forces(dev.lengths(dev.home), dev.home)
-        assert np.max(np.abs(f)) > 1.2 * FORCE_LIMIT, f'premise: {f} N'
-        op.move_body(sunk)
-        op.wait_state('protective stop')
-        assert 'force' in op.state(), op.state()
-        op.wait_rest()
-        ok, msg = op.driver('recover')
-        assert not ok and 'cause still present' in msg, msg
-        ok, relieved = op.driver('relieve')
-        assert ok, relieved
-        op.wait_rest()
-        _, _, _, after_relief = op.truth()[-1]         # judged at the end: the rest still runs
-        ok, msg = op.driver('recover')
-        assert ok and 'recovered' in msg, msg
-        op.wait_state('disabled')
-        recover_and_enable(op)
-        # the patient rises back to rest; the brace follows
-        dev.soft_limit = soft
-        here = op.true_pose()
-        steps = np.linspace(0.0, 1.0, 4)[1:]
-        for s in steps:
-            body = sunk + s * (rest - sunk)
-            dev.rest = body
-            _, f = dev.static_forces(op.true_lengths(), here)
-            assert np.max(np.abs(f)) < soft, f'premise: the body at {body} loads the legs {f} N'
-            op.move_body(body)
-            op.wait_samples(10)
-            op.goal_succeeds(np.array([0.0, body[1], body[2]]))
-            here = op.true_pose()
-        assert np.all(np.abs(op.true_pose() - rest) <= dev.tolerance)
-        check_one_end_each(op)
-        assert np.all(np.abs(after_relief) < release), \
-            f'true forces {after_relief.tolist()} N after the relief, release force {release} N: {relieved}'

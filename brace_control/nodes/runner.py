@@ -19,6 +19,7 @@ Linux the kernel's parent-death signal (SIGTERM) backs it up.
 """
 from __future__ import annotations
 
+import faulthandler
 import gc
 import os
 import signal
@@ -33,6 +34,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
 from ..config import ConfigError, load_device_config
+from .spin import spin_once
 
 __all__ = ['run_node', 'usage', 'make_executor', 'freeze_start_up_heap', 'watch_parent',
            'STOP_SIGNALS', 'PARENT_FD_ENV', 'EXIT_STARTUP', 'EXIT_CONFIG']
@@ -41,6 +43,10 @@ EXIT_STARTUP = 1
 EXIT_CONFIG = 2
 #: s run_node waits at exit for callbacks still running
 EXECUTOR_SHUTDOWN_S = 2.0
+#: s: the most the DDS teardown at exit may take (after the node's own shutdown) before
+#: the process ends itself with its stacks on stderr; less than the bring-up's 10 s
+#: before SIGKILL (``ProcessBringUp.stop``)
+TEARDOWN_S = 6.0
 #: the signals that stop a node (and the bring-up) cleanly: the drives are disabled first
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
 #: environment variable: the read end of the pipe a parent (brace-bringup) keeps open
@@ -184,7 +190,7 @@ def run_node(factory: Callable[[], Node], *, executable: str, summary: str,
         spinner.add_node(node)
         # wake at least every 0.1 s to see a signal (Python runs handlers between bytecodes)
         while not stop.is_set() and rclpy.ok():
-            spinner.spin_once(timeout_sec=0.1)
+            spin_once(spinner, 0.1)                     # nodes/spin.py
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except startup_errors as exc:
@@ -200,6 +206,12 @@ def run_node(factory: Callable[[], Node], *, executable: str, summary: str,
         shutdown = getattr(node, 'shutdown', None)
         if callable(shutdown):
             shutdown()
+        # The node's own work is done (drives disabled, goals reported). What is left is
+        # DDS teardown, native code that has deadlocked in Fast DDS (eProsima/Fast-DDS#6502)
+        # holding the interpreter lock: a C watchdog (faulthandler's thread needs no GIL)
+        # then prints every thread's stack on stderr and ends the process with exit code 1
+        # after TEARDOWN_S, instead of leaving it for the bring-up's SIGKILL or forever.
+        faulthandler.dump_traceback_later(TEARDOWN_S, exit=True)
         # a callback still awaiting a peer that is gone (a service call to a node already
         # stopped) must not hold the exit: wait a bounded time for the running callbacks
         spinner.shutdown(timeout_sec=EXECUTOR_SHUTDOWN_S)
