@@ -57,15 +57,13 @@ from typing import Any
 from .can.errors import DriverError
 from .checks import check_device
 from .config import ConfigError, load_device_config, resolve_device_file
-from .nodes import topics
+from .nodes import DRIVER_NODE, NODE_NAMES, topics
 
 __all__ = ['NODE_NAMES', 'STACK_LINKS', 'IDEMPOTENT_SERVICES', 'BringUp', 'ProcessBringUp', 'node_class',
            'find_executable', 'call_trigger', 'disable_drives', 'missing_links', 'wait_for_links',
            'wait_until_ready', 'main']
 
-#: the nodes of a device, in data-flow order
-NODE_NAMES = ('trajectory_node', 'ik_node', 'can_driver_node', 'kinetics_node', 'interaction_node')
-DRIVER = 'can_driver_node'
+DRIVER = DRIVER_NODE
 _MANUAL_HINT = ('can_driver_node is unconfigured (--manual-lifecycle): ros2 lifecycle set '
                 '/can_driver_node configure, then activate')
 
@@ -191,7 +189,7 @@ def wait_for_links(node: Any, *, timeout: float = 20.0, nodes: Sequence[str] = N
     from milliseconds to seconds on a loaded host. A goal sent before the IK node's
     setpoints reach the driver starts a motion the drives do not follow; the first
     setpoint that does arrive is then a jump, and the driver's step limit stops the
-    brace (SAFETY.md 7). Send goals after this returns.
+    brace (docs/safety.md §7). Send goals after this returns.
 
     :raises TimeoutError: a link still missing after ``timeout`` s (named).
     """

@@ -42,100 +42,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
-from .nodes.spin import BackgroundSpinner
+from .demo_session import RECORDED_TOPICS, find_service, pkg_path, prepare_config, wait_recording
 from .nodes import topics
+from .nodes.spin import BackgroundSpinner
 
 __all__ = ['main', 'prepare_config', 'RECORDED_TOPICS']
-
-#: Every brace topic a run publishes, with its type: what ``OUT/run.mcap`` holds. Not the
-#: teleoperation streams (``/brace/pose_setpoint``, ``/brace/actuator_setpoint``), the paths,
-#: the wrench goal or the body's rest: nothing publishes them in a run, and ``brace-bag
-#: record`` fails on a topic that never appears.
-RECORDED_TOPICS = {
-    topics.POSE_GOAL: 'geometry_msgs/msg/PoseStamped',
-    topics.POSE_TRAJECTORY: 'trajectory_msgs/msg/MultiDOFJointTrajectory',
-    topics.ACTUATOR_TRAJECTORY: 'trajectory_msgs/msg/JointTrajectory',
-    topics.JOINT_STATES: 'sensor_msgs/msg/JointState',
-    topics.POSE: 'geometry_msgs/msg/PoseStamped',
-    topics.POSE_WITH_COVARIANCE: 'geometry_msgs/msg/PoseWithCovarianceStamped',
-    topics.WRENCH: 'geometry_msgs/msg/WrenchStamped',
-    topics.GOAL_STATUS: 'diagnostic_msgs/msg/DiagnosticStatus',
-    topics.EXECUTION_STATUS: 'diagnostic_msgs/msg/DiagnosticStatus',
-    topics.DRIVER_STATE: 'diagnostic_msgs/msg/DiagnosticStatus',
-    topics.DIAGNOSTICS: 'diagnostic_msgs/msg/DiagnosticArray',
-    topics.SIM_JOINT_STATES: 'sensor_msgs/msg/JointState',
-    topics.SIM_POSE: 'geometry_msgs/msg/PoseStamped',
-    topics.SIM_WRENCH: 'geometry_msgs/msg/WrenchStamped',
-}
-
-
-def prepare_config(device: str, out: Path) -> tuple[Path, str | None]:
-    """The device file to run; ``(path, note)``.
-
-    If the device's home pose is singular (the lumbar brace's ``theta = 0`` poses are:
-    its anchor rows are parallel and the leg lines meet in one point), nothing can be
-    planned from it, so the demo parks the brace tilted by the exercise's neutral tilt:
-    a copy of the file with ``mechanism.home_pose`` and ``sim.rest_pose`` turned by it.
-    """
-    from .config import load_device_config, resolve_device_file
-    from .exercise import NEUTRAL_TILT
-    from .mechanisms import mechanism_from_config
-    path = resolve_device_file(device)
-    cfg = load_device_config(path)
-    mech = mechanism_from_config(cfg)
-    if mech.in_workspace(mech.home_pose) or mech.dof != 3:
-        return path, None
-    doc = yaml.safe_load(path.read_text())
-    params = doc['/**']['ros__parameters']
-    home = list(params['mechanism']['home_pose'])
-    home[2] = float(home[2]) + NEUTRAL_TILT
-    params['mechanism']['home_pose'] = home
-    if 'sim' in params and 'rest_pose' in params['sim']:
-        rest = list(params['sim']['rest_pose'])
-        rest[2] = float(rest[2]) + NEUTRAL_TILT
-        params['sim']['rest_pose'] = rest
-    for key in ('eds',):
-        if key in params.get('can', {}):
-            params['can'][key] = str(cfg.relative_file(params['can'][key]))
-    derived = out / path.name
-    derived.write_text(f'# {path} with the brace parked at theta = {math.degrees(NEUTRAL_TILT):.1f} deg '
-                       '(written by brace_control.demo)\n' + yaml.safe_dump(doc, sort_keys=False))
-    note = (f'home pose {np.round(mech.home_pose, 4).tolist()} is singular (theta = 0); the brace '
-            f'is parked at theta = {math.degrees(NEUTRAL_TILT):.1f} deg instead ({derived})')
-    return derived, note
-
-
-def _find_service(node, suffix: str, timeout: float) -> str | None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        for name, types in node.get_service_names_and_types():
-            if name.rstrip('/').split('/')[-1] == suffix and 'std_srvs/srv/Trigger' in types:
-                return name
-        time.sleep(0.1)
-    return None
-
-
-def _pkg_path() -> str:
-    root = str(Path(__file__).resolve().parent.parent)
-    return os.pathsep.join(p for p in (os.environ.get('PYTHONPATH', ''), root) if p)
-
-
-def _wait_recording(node, topics: list[str], proc, timeout: float = 20.0) -> None:
-    """Until the recorder process subscribes every topic (it knows their types from the graph)."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise RuntimeError(f'recorder exited: {proc.stderr.read()[-500:]}')
-        subs = {t: node.get_subscriptions_info_by_topic(t) for t in topics}
-        if all(any(i.node_name == 'brace_bag' for i in infos) for infos in subs.values()):
-            return
-        time.sleep(0.1)
-    missing = [t for t in topics if not any(i.node_name == 'brace_bag'
-                                            for i in node.get_subscriptions_info_by_topic(t))]
-    raise RuntimeError(f'recorder did not subscribe {missing} within {timeout} s')
-
 
 class _Watch:
     """The demo's own node: measured pose / wrench and goal events for the progress line."""
@@ -247,7 +159,7 @@ def run_demo(device: str, out: Path, *, rate: float = 1.0, settle: float = 3.0,
             bringup = BringUp(config, sim=True, extra_args=extra_args).start()
         services = {}
         for what in ('home', 'enable'):
-            name = _find_service(node, what, 30.0)
+            name = find_service(node, what, 30.0)
             if name is None:
                 raise RuntimeError(f'the CAN driver offers no {what!r} Trigger service')
             services[what] = name
@@ -258,8 +170,8 @@ def run_demo(device: str, out: Path, *, rate: float = 1.0, settle: float = 3.0,
         recorder = subprocess.Popen(
             [sys.executable, '-m', 'brace_control.bag', 'record', str(out / 'run.mcap'),
              '--topics', *RECORDED_TOPICS], stderr=subprocess.PIPE, text=True,
-            start_new_session=True, env={**os.environ, 'PYTHONPATH': _pkg_path()})
-        _wait_recording(node, list(RECORDED_TOPICS), recorder)
+            start_new_session=True, env={**os.environ, 'PYTHONPATH': pkg_path()})
+        wait_recording(node, list(RECORDED_TOPICS), recorder)
         for what in ('home', 'enable'):
             ok, msg = call_trigger(node, services[what], timeout=20.0, executor=executor)
             print(f'{what}: {"ok" if ok else "FAILED"} {msg}')

@@ -403,7 +403,7 @@ def run_interaction_demo(device: str, out: Path, *, processes: bool = True,
     from .bringup import (BringUp, ProcessBringUp, call_trigger, disable_drives, wait_for_links,
                           wait_until_ready)
     from .config import load_device_config
-    from .demo import RECORDED_TOPICS, _find_service, _pkg_path, _wait_recording, prepare_config
+    from .demo_session import RECORDED_TOPICS, find_service, pkg_path, prepare_config, wait_recording
     from .mechanisms import mechanism_from_config
 
     out.mkdir(parents=True, exist_ok=True)
@@ -442,7 +442,7 @@ def run_interaction_demo(device: str, out: Path, *, processes: bool = True,
                    BringUp(config, sim=True, extra_args=extra)).start()
         services = {}
         for what in ('home', 'enable', 'start', 'stop'):
-            name = _find_service(node, what, 30.0)
+            name = find_service(node, what, 30.0)
             if name is None:
                 raise RuntimeError(f'no {what!r} Trigger service in the graph')
             services[what] = name
@@ -455,8 +455,8 @@ def run_interaction_demo(device: str, out: Path, *, processes: bool = True,
         recorder = subprocess.Popen(
             [sys.executable, '-m', 'brace_control.bag', 'record', str(out / 'run.mcap'),
              '--topics', *record], stderr=subprocess.PIPE, text=True,
-            start_new_session=True, env={**os.environ, 'PYTHONPATH': _pkg_path()})
-        _wait_recording(node, list(record), recorder)
+            start_new_session=True, env={**os.environ, 'PYTHONPATH': pkg_path()})
+        wait_recording(node, list(record), recorder)
         for what in ('home', 'enable'):
             ok, msg = call_trigger(node, services[what], timeout=20.0, executor=executor)
             print(f'{what}: {"ok" if ok else "FAILED"} {msg}')

@@ -824,6 +824,7 @@ def read_interaction(path: str | Path, phases: str | Path | Mapping[str, Any] | 
     from rosbags.rosbag2 import Reader
 
     from .mechanisms import mechanism_from_config
+    from .schema import soft_force_limit
     from .nodes import topics
     from .nodes.msgs import pose_from_msg, pose_kind, stamp_to_ns, status_values
     cfg = _device_config(config)
@@ -871,8 +872,7 @@ def read_interaction(path: str | Path, phases: str | Path | Mapping[str, Any] | 
     spans = [(p['name'], (p['start_ns'] - t0) * 1e-9, (p['end_ns'] - t0) * 1e-9) for p in doc.get('phases', [])]
     axes = np.atleast_1d(np.asarray(cfg['interaction']['force_axes'], dtype=bool)).ravel()
     axes = np.full(mech.dof, bool(axes[0])) if axes.size == 1 else axes
-    force_limit = float(cfg.get_path('safety.force_limit'))
-    soft = float(cfg['safety'].get('soft_force_limit', 0.0) or 0.8 * force_limit)
+    soft = soft_force_limit(cfg)
     return InteractionRun(run, series('body'), series('rest'), series('goal'), series('setpoint'),
                           spans, axes, soft, statuses, dict(doc.get('script', {})))
 

@@ -30,7 +30,8 @@ from typing import Any
 
 __all__ = ['Param', 'SCHEMA', 'MECHANISM_SCHEMAS', 'MECHANISM_COMMON', 'REMOVED', 'ROS_BUILTIN_PREFIXES',
            'ConfigError', 'param_type', 'mechanism_params', 'lookup', 'validate', 'validate_flat',
-           'check_value', 'with_defaults', 'flatten', 'known_names']
+           'check_value', 'with_defaults', 'flatten', 'known_names', 'SOFT_LIMIT_FRACTION',
+           'RELEASE_FRACTION', 'soft_force_limit', 'release_force']
 
 
 class ConfigError(ValueError):
@@ -150,19 +151,19 @@ SCHEMA: dict[str, Param] = {
     'kinetics.ambiguity_check_period': _ro(0.05, 'time between full forward solutions (all assembly '
                                            'modes)', (0.0, 10.0), 's'),
     # trajectory
-    'trajectory.rate_hz': Param(200.0, 'setpoint rate', (1.0, 2000.0), unit='Hz'),
-    'trajectory.profile': Param('minimum_jerk', 'motion profile',
+    'trajectory.rate_hz': _ro(200.0, 'setpoint rate', (1.0, 2000.0), unit='Hz'),
+    'trajectory.profile': _ro('minimum_jerk', 'motion profile',
                                 choices=('minimum_jerk', 'scurve', 'logcosh')),
-    'trajectory.max_velocity': Param([0.03, 0.03, 0.3], 'platform velocity limit per pose coordinate',
+    'trajectory.max_velocity': _ro([0.03, 0.03, 0.3], 'platform velocity limit per pose coordinate',
                                      (1e-9, _INF), unit='m/s or rad/s'),
-    'trajectory.max_acceleration': Param([0.1, 0.1, 1.0], 'platform acceleration limit per pose coordinate',
+    'trajectory.max_acceleration': _ro([0.1, 0.1, 1.0], 'platform acceleration limit per pose coordinate',
                                          (1e-9, _INF), unit='m/s^2 or rad/s^2'),
-    'trajectory.max_jerk': Param([1.0, 1.0, 10.0], 'platform jerk limit per pose coordinate',
+    'trajectory.max_jerk': _ro([1.0, 1.0, 10.0], 'platform jerk limit per pose coordinate',
                                  (1e-9, _INF), unit='m/s^3 or rad/s^3'),
-    'trajectory.fitts_a': Param(0.2, "Fitts' law intercept a", (0.0, 60.0), unit='s'),
-    'trajectory.fitts_b': Param(0.3, "Fitts' law slope b", (0.0, 60.0), unit='s/bit'),
-    'trajectory.fitts_w': Param(0.01, "Fitts' law target width W", (1e-6, 10.0), unit='m or rad'),
-    'trajectory.path_check_samples': Param(200, 'samples of a path checked for stroke, workspace and singularity (its '
+    'trajectory.fitts_a': _ro(0.2, "Fitts' law intercept a", (0.0, 60.0), unit='s'),
+    'trajectory.fitts_b': _ro(0.3, "Fitts' law slope b", (0.0, 60.0), unit='s/bit'),
+    'trajectory.fitts_w': _ro(0.01, "Fitts' law target width W", (1e-6, 10.0), unit='m or rad'),
+    'trajectory.path_check_samples': _ro(200, 'samples of a path checked for stroke, workspace and singularity (its '
                                            'actuator speed and acceleration are checked on the knots the driver runs)',
                                            (2, 100000)),
     'trajectory.min_wrench_capacity': _ro([0.0], 'the smallest wrench capacity per wrench axis (the '
@@ -205,7 +206,7 @@ SCHEMA: dict[str, Param] = {
                            '(can.sdo_retries) or the boot fails', (0.001, 10.0), 's'),
     'can.sdo_retries': _ro(1, 'times an unanswered SDO request is sent again', (0, 10)),
     'can.sync_rate_hz': _ro(500.0, 'SYNC / control rate', (1.0, 2000.0), 'Hz'),
-    'can.joint_state_rate_hz': Param(100.0, 'joint_states publish rate', (1.0, 2000.0), unit='Hz'),
+    'can.joint_state_rate_hz': _ro(100.0, 'joint_states publish rate', (1.0, 2000.0), unit='Hz'),
     'can.boot_timeout': _ro(3.0, 'wait for boot-up / first heartbeat', (0.05, 60.0), 's'),
     'can.drive_heartbeat_ms': _ro(50, 'drive heartbeat producer time 1017h', (1, 10000), 'ms'),
     'can.heartbeat_consumer_ms': _ro(150, "master's timeout on a drive's heartbeat", (1, 30000), 'ms'),
@@ -219,7 +220,7 @@ SCHEMA: dict[str, Param] = {
                                     '(needs CAP_SYS_NICE)', (0, 99)),
     'can.gil_switch_interval_us': _ro(200, "driver process: Python's GIL switch interval, 0 = keep "
                                       "Python's 5000 us", (0, 100000), 'us'),
-    # safety (SAFETY.md): read-only at run time
+    # safety (docs/safety.md): read-only at run time
     'safety.command_timeout': _ro(0.015, 'no setpoint received for this long -> hold', (0.001, 5.0), 's'),
     'safety.following_error_window': _ro(0.003, 'following error window 6065h', (1e-6, 1.0), 'm or rad'),
     'safety.path_tolerance': _ro(0.005, 'tracking error in actuator coordinates -> abort and hold',
@@ -230,10 +231,11 @@ SCHEMA: dict[str, Param] = {
     'safety.stale_periods': _ro(3, 'periods without sensor update -> fault', (1, 1000)),
     'safety.max_wrench': _ro([150.0, 150.0, 30.0], 'platform wrench limit per axis', (0.0, _INF), 'N or N·m'),
     'safety.soft_force_limit': _ro(0.0, 'load-cell force / torque above which a motion that keeps pressing '
-                                   'decelerates and holds, nothing latched (0: 0.8 x safety.force_limit)',
+                                   'decelerates and holds, nothing latched (0: SOFT_LIMIT_FRACTION = 0.8 x '
+                                   'safety.force_limit)',
                                    (0.0, 1e5), 'N or N·m'),
     'safety.release_force': _ro(0.0, 'a relief (~/relieve) backs off until every force is below this '
-                                '(0: 0.2 x safety.force_limit)', (0.0, 1e5), 'N or N·m'),
+                                '(0: RELEASE_FRACTION = 0.2 x safety.force_limit)', (0.0, 1e5), 'N or N·m'),
     'safety.pose_tolerance': _ro([0.002, 0.002, 0.00524], 'a goal succeeds only when the estimated pose '
                                  'is this close to it, per pose coordinate', (0.0, _INF), 'm or rad'),
     'safety.settle_time': _ro(0.5, 'after a motion finished, how long the estimate may take to reach '
@@ -675,6 +677,27 @@ def _get(cfg: Mapping[str, Any], dotted: str) -> Any:
             return None
         node = node[k]
     return node
+
+
+#: ``safety.soft_force_limit = 0`` means this share of ``safety.force_limit`` (docs/safety.md §14)
+SOFT_LIMIT_FRACTION = 0.8
+#: ``safety.release_force = 0`` means this share of ``safety.force_limit`` (docs/safety.md §15)
+RELEASE_FRACTION = 0.2
+
+
+def soft_force_limit(cfg: Mapping[str, Any]) -> float:
+    """The soft force tier's threshold of a device file (docs/safety.md §14): its
+    ``safety.soft_force_limit``, or :data:`SOFT_LIMIT_FRACTION` of ``safety.force_limit``
+    when that is 0."""
+    return float(_get(cfg, 'safety.soft_force_limit') or
+                 SOFT_LIMIT_FRACTION * float(_get(cfg, 'safety.force_limit')))
+
+
+def release_force(cfg: Mapping[str, Any]) -> float:
+    """A relief's release threshold (docs/safety.md §15): ``safety.release_force``, or
+    :data:`RELEASE_FRACTION` of ``safety.force_limit`` when that is 0."""
+    return float(_get(cfg, 'safety.release_force') or
+                 RELEASE_FRACTION * float(_get(cfg, 'safety.force_limit')))
 
 
 def with_defaults(params: Mapping[str, Any], sections: Iterable[str] | None = None) -> dict[str, Any]:

@@ -1,4 +1,4 @@
-"""Launch the four nodes of a device (ROS 2 installs with launch_ros).
+"""Launch the nodes of a device (ROS 2 installs with launch_ros).
 
     ros2 launch brace_control brace.launch.py [config:=<device>.yaml] [sim:=true|false]
                                               [manual_lifecycle:=false|true]
@@ -26,8 +26,7 @@ from launch_ros.event_handlers import OnStateTransition
 from launch_ros.events.lifecycle import ChangeState
 from lifecycle_msgs.msg import Transition
 
-NODES = ('trajectory_node', 'ik_node', 'can_driver_node', 'kinetics_node')
-DRIVER = 'can_driver_node'
+from brace_control.nodes import DRIVER_NODE as DRIVER, NODE_NAMES as NODES
 
 
 def generate_launch_description() -> LaunchDescription:

@@ -115,7 +115,7 @@ def test_services_joint_states_and_setpoints(ros, driver):
 
 
 def test_platform_wrench_limit_stops_and_reports(ros, driver):
-    """SAFETY.md 8: three legs each under the 250 N actuator limit, but together a
+    """docs/safety.md §8: three legs each under the 250 N actuator limit, but together a
     platform force above safety.max_wrench (150 N): protective stop, in /diagnostics."""
     probe = ros.node('probe')
     diags = ros.collect(probe, DiagnosticArray, '/diagnostics')

@@ -202,7 +202,7 @@ def test_target_stream_moves_the_drives_and_feedback_is_si(rig):
 
 
 def test_a_stream_that_stops_decelerates_along_its_direction_and_holds(rig):
-    """SAFETY.md 1: no setpoint for command_timeout -> the command decelerates to rest within
+    """docs/safety.md §1: no setpoint for command_timeout -> the command decelerates to rest within
     a_max along its current direction (every axis together) and holds; reported, not
     latched. It does not travel on to the last setpoint: it stops within what the speed
     allows, v (timeout + a period) + v^2 / (2 a_max) past the last setpoint's place."""
@@ -230,6 +230,7 @@ def test_a_stream_that_stops_decelerates_along_its_direction_and_holds(rig):
     assert not master.supervisor.latched and master.state is MasterState.ENABLED
 
 
+# docs/safety.md §5, §6
 def test_bad_setpoints_raise_and_send_nothing(rig):
     sim, master = rig
     with pytest.raises(ValueError, match='not finite'):
@@ -306,6 +307,7 @@ def _recover_and_enable(master):
     assert master.state is MasterState.ENABLED
 
 
+# docs/safety.md §2
 def test_fault_heartbeat_silenced(rig):
     """Bound: consumer time 150 ms after the last heartbeat (≤ 150 ms) + slack."""
     sim, master = rig
@@ -337,7 +339,7 @@ class _StallingListener(can.Listener):
 
 
 def test_a_receive_thread_behind_is_not_a_lost_heartbeat(rig):
-    """SAFETY.md 4 judged on what the bus carried: the receive thread held 140 ms at a time
+    """docs/safety.md §4 judged on what the bus carried: the receive thread held 140 ms at a time
     (< the 150 ms consumer time, > its 100 ms margin over the drives' 50 ms heartbeat)
     eight times, at different phases of the heartbeat: every drive went on sending, so no
     heartbeat is lost. A drive that does fall silent meanwhile is still caught."""
@@ -357,6 +359,7 @@ def test_a_receive_thread_behind_is_not_a_lost_heartbeat(rig):
         sim.faults.silence_heartbeat(2, False)
 
 
+# docs/safety.md §4
 def test_fault_emcy_with_drive_fault(rig):
     """Bound: the EMCY frame itself (≤ 1 period) + slack."""
     sim, master = rig
@@ -372,6 +375,7 @@ def test_fault_emcy_with_drive_fault(rig):
     master.enable()
 
 
+# docs/safety.md §3
 def test_fault_bus_off_and_failed_send(rig):
     """Bound: error frame → fault at once; the next send fails (≤ 1 period) + slack."""
     sim, master = rig
@@ -386,6 +390,7 @@ def test_fault_bus_off_and_failed_send(rig):
     master.enable()
 
 
+# docs/safety.md §3
 def test_error_passive_warns_without_stopping(rig):
     sim, master = rig
     sim.faults.error_frame('passive')
@@ -395,6 +400,7 @@ def test_error_passive_warns_without_stopping(rig):
     wait_for(lambda: master.status().bus.error_state == 'active', 0.05, 'back to active')
 
 
+# docs/safety.md §9
 def test_fault_stale_tpdo(rig):
     """Bound: stale_periods (3) SYNC periods = 6 ms + slack."""
     sim, master = rig
@@ -406,6 +412,7 @@ def test_fault_stale_tpdo(rig):
     _recover_ok(master)
 
 
+# docs/safety.md §9
 def test_fault_encoder_jump(rig):
     """Bound: the next TPDO (1 period) + slack; momentary, but the drive must be re-homed."""
     sim, master = rig
@@ -420,6 +427,7 @@ def test_fault_encoder_jump(rig):
     master.enable()
 
 
+# docs/safety.md §9, §11
 def test_fault_encoder_frozen_is_caught_by_the_following_error(rig):
     """A frozen encoder is not stale (TPDOs still come): moving exposes it. Bound: the
     target moves path_tolerance (5 mm) at 30 mm/s ≈ 167 ms + slack."""
@@ -434,6 +442,7 @@ def test_fault_encoder_frozen_is_caught_by_the_following_error(rig):
     sim.faults.freeze_encoder(1, False)
 
 
+# docs/safety.md §9
 def test_fault_load_cell_saturated(rig):
     """Bound: next TPDO (1 period) + slack."""
     sim, master = rig
@@ -445,6 +454,7 @@ def test_fault_load_cell_saturated(rig):
     _recover_ok(master)
 
 
+# docs/safety.md §8
 def test_fault_force_limit(rig):
     sim, master = rig
     sim.faults.set_load_cell(2, -260.0)
@@ -454,6 +464,7 @@ def test_fault_force_limit(rig):
     _recover_ok(master)
 
 
+# docs/safety.md §11
 def test_fault_stall_following_error(rig):
     """Stalled actuator a3 commanded at 30 mm/s (the others hold: no force builds up):
     the drive's window 6065h (3 mm) or the master's path tolerance (5 mm) trips.
@@ -473,6 +484,7 @@ def test_fault_stall_following_error(rig):
     master.enable()
 
 
+# docs/safety.md §7
 def test_fault_step_limit_rejects_the_stream_and_is_recoverable_once_still(rig):
     """Bound: next cycle (1 period) + slack. The stop's cause is the command, which recover
     discards: recover succeeds once the drives hold still, and the brace moves again."""
@@ -510,7 +522,7 @@ def test_drive_reboot_latches_and_recover_reconfigures_it(rig):
 
 
 def test_drives_stop_on_their_own_when_the_master_dies(rig):
-    """SAFETY.md 2: the drives consume the master's heartbeat (1016h = 200 ms) and apply
+    """docs/safety.md §2: the drives consume the master's heartbeat (1016h = 200 ms) and apply
     6007h = 3 (quick stop) when it stops. Bound: 200 ms + one heartbeat period + twice
     the slack (the simulator's own timer thread notices the silence)."""
     sim, master = rig
@@ -959,7 +971,7 @@ def _rig_with(safety, cfg=CFG):
 
 
 def test_the_soft_force_limit_brakes_a_pressing_motion_and_nothing_latches():
-    """SAFETY.md 14: a lift against the body (4000 N/m) loads every leg ~27 N; with the soft
+    """docs/safety.md §14: a lift against the body (4000 N/m) loads every leg ~27 N; with the soft
     limit at 15 N the motion decelerates along its path (still on it) and holds, its
     trajectory reported stopped naming the leg and the force; nothing latches and the next
     motion (down, unloading) runs."""
@@ -998,7 +1010,7 @@ def _pose_of(master):
 
 
 def test_a_loaded_stop_is_relieved_then_recovered():
-    """SAFETY.md 15: the patient slumps (the body's rest pose 26 mm lower: ~100 N on the
+    """docs/safety.md §15: the patient slumps (the body's rest pose 26 mm lower: ~100 N on the
     ring) while the brace holds: the legs pass the force limit (30 N here) and a protective
     stop latches; recover is refused while loaded. relieve backs every leg off slowly until
     all forces are below the release force; recover then succeeds and the drives enable."""
@@ -1034,7 +1046,7 @@ def test_relieve_refuses_a_fault_it_cannot_back_off_from(rig):
 
 
 def test_a_loaded_stop_on_rigid_rotary_joints_is_relieved():
-    """SAFETY.md 15 on the 2R neck brace: its joints are modelled rigid (actuator.stiffness
+    """docs/safety.md §15 on the 2R neck brace: its joints are modelled rigid (actuator.stiffness
     1e7 N·m/rad), so a relief paced by the legs' stiffness alone crawled at micro-radians per
     second and timed out with the head still pushed. The head's rest moves 40 mm (800 N/m:
     ~32 N at the support point) while the brace holds: the joint torques pass the force

@@ -32,6 +32,7 @@ def test_consumer_time_must_exceed_producer_time(cfg):
         Limits.from_config(bad, scaling_from_config(cfg))
 
 
+# docs/safety.md §4, §8
 def test_a_fault_latches_once_and_calls_the_reaction():
     seen = []
     sup = Supervisor(on_fault=seen.append)
@@ -65,6 +66,7 @@ def test_step_limit_is_vmax_dt_plus_margin(limits):
     assert 'exceeds' in check_step('a1', 0.39, 0.39 + 1.01 * allowed, dt, limits)
 
 
+# docs/safety.md §5, §7
 def test_step_limit_ramps_down_near_the_stroke_end(limits):
     # 0.1 mm from the end a 0.6 mm step in 2 ms is allowed mid-stroke but not here
     assert check_step('a1', 0.39, 0.3906, 0.002, limits) is None
@@ -76,6 +78,7 @@ def _sample(pos, *, load=0, k=1, sw=0x1637):
     return Sample(sw, pos, load * 0.01, load, k, k * 0.002)
 
 
+# docs/safety.md §8, §9, §11
 def test_monitors_flag_saturation_force_jump_and_following_error(limits):
     kinds = lambda found: {k for k, _ in found}   # noqa: E731
     assert kinds(check_sample(None, _sample(0.39, load=28500), limits, commanded=None)) == {
@@ -89,6 +92,7 @@ def test_monitors_flag_saturation_force_jump_and_following_error(limits):
     assert check_sample(prev, _sample(0.39012, k=2), limits, commanded=0.3902) == []
 
 
+# docs/safety.md §3
 def test_error_frames_decode_socketcan_layout():
     busoff = can.Message(is_error_frame=True, arbitration_id=0x040, data=bytes(8))
     passive = can.Message(is_error_frame=True, arbitration_id=0x004,

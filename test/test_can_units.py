@@ -15,7 +15,8 @@ from canopen import objectdictionary as od
 from brace_control.can.cia402 import (STATE_STATUSWORD, Controlword, EmcyCode, ErrorRegister,
                                       NmtState, State402, controlword_towards, decode_state,
                                       describe_statusword, emcy_description, error_register_bits)
-from brace_control.can.pdo import RPDO1, RPDO2, TPDO1, frame_bits, pdo_mapping_writes
+from brace_control.can.pdo import RPDO1, RPDO2, TPDO1, frame_bits
+from brace_control.can.plan import pdo_mapping_writes
 from brace_control.can.timing import PeriodStats, run_periodic
 from brace_control.can.units import AxisScaling, scaling_from_config
 from brace_control.config import ConfigError, load_device_config

@@ -20,11 +20,12 @@ from pathlib import Path
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 
+from brace_control.nodes import NODE_NAMES
 from ros_helpers import REPO
 
 pytestmark = [pytest.mark.slow, pytest.mark.ros]
 
-NODES = ['ik_node', 'kinetics_node', 'trajectory_node', 'can_driver_node']
+NODES = list(NODE_NAMES)
 TOOLS = ['bringup', 'brace-bringup', 'brace-bag']
 BIN = Path(sys.executable).parent
 

@@ -21,7 +21,7 @@ setpoints, and independent computations from the paper and the YAML (:class:`Dev
 Deliberate settings, all as ROS parameters on the command line:
 
 * ``can.channel``: a channel of its own per test (virtual buses are per process);
-* every safety limit as the device file sets it (SAFETY.md 13);
+* every safety limit as the device file sets it (docs/safety.md §13);
 * ``trajectory.fitts_a`` 1 s (Fitts' law intercept; 0.2 s in the YAML): motions of
   1.2-1.5 s instead of 0.5 s. Near the lumbar brace's theta = 0 singularity microns of
   actuator lag are millimetres of pose (at theta = 5 deg, 10 um on a2 = 3.4 mm in x).
@@ -516,12 +516,14 @@ def in_process(device_file):
         yield running
 
 
+# docs/safety.md §12, §16
 def test_in_process_goals_end_honestly_against_the_truth(device_file, in_process, tmp_path):
     b, probe = in_process
     _replay_goals(b.helper, tmp_path, GOALS, 'brace_base')
     check_honest_outcomes(Device(device_file), probe)
 
 
+# docs/safety.md §6, §10
 def test_in_process_unreachable_and_nan_goals_are_rejected_without_motion(device_file, in_process, tmp_path):
     b, probe = in_process
     _replay_goals(b.helper, tmp_path, rejection_goals(), 'brace_base')
@@ -578,6 +580,7 @@ def as_processes(device_file):
         yield running
 
 
+# docs/safety.md §12, §16
 def test_processes_goals_end_honestly_against_the_truth(device_file, as_processes, tmp_path):
     group, node, probe = as_processes
     _replay_goals(node, tmp_path, GOALS, 'brace_base')
@@ -601,6 +604,7 @@ def check_late_subscriber_gets_every_outcome(node, probe) -> None:
         node.destroy_subscription(sub)
 
 
+# docs/safety.md §6, §10
 def test_processes_unreachable_and_nan_goals_are_rejected_without_motion(device_file, as_processes, tmp_path):
     group, node, probe = as_processes
     _replay_goals(node, tmp_path, rejection_goals(), 'brace_base')

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from brace_control.can.cia402 import Controlword, State402, controlword_towards, decode_state
-from brace_control.can.pdo import pdo_mapping_writes
+from brace_control.can.plan import pdo_mapping_writes
 from brace_control.mechanisms import load_mechanism
 from brace_control.mechanisms.planar_floats import PlanarRprFloats
 from brace_control.mechanisms.pose_estimate import MeasurementModel, PoseEstimator

@@ -184,6 +184,7 @@ def test_a_planned_motion_becomes_actuator_knots_within_1_um_of_the_ik(motion_ri
     np.testing.assert_array_equal(QDD[-1], 0.0)
 
 
+# docs/safety.md §10
 def test_a_motion_through_an_unreachable_pose_is_rejected_with_its_stamp(motion_rig):
     from brace_control.nodes.msgs import pose_trajectory_msg, status_values
     ros, ik, pub, out, events = motion_rig

@@ -318,7 +318,7 @@ def test_zero_torque_mode_follows_a_swaying_patient_and_holds_wrench_goals(stack
     assert ok, msg
     truth.wait_status(lambda s: s.message == 'stopped', 5, 'stopped')
     # continuity: the driver's command (the admittance in the SYNC cycle) never steps or
-    # accelerates beyond the actuator limits (SAFETY 7: no jump at start, goal or stop)
+    # accelerates beyond the actuator limits (docs/safety.md §7: no jump at start, goal or stop)
     cmd = np.array(commands)
     vel = np.diff(cmd, axis=0) / period
     report['max command speed mm/s'] = float(np.max(np.abs(vel)) * 1e3)

@@ -53,13 +53,13 @@ _channels = itertools.count()
 
 FORCE_LIMIT_N = 40.0             # safety.force_limit in these tests
 SOFT_FORCE_LIMIT_N = 20.0        # safety.soft_force_limit
-#: N, N, N·m: safety.max_wrench (the platform wrench monitor, SAFETY.md 8) as in the YAML
+#: N, N, N·m: safety.max_wrench (the platform wrench monitor, docs/safety.md §8) as in the YAML
 MAX_WRENCH = np.array(PARAMS['safety']['max_wrench'], dtype=float)
 HOME = np.array(PARAMS['mechanism']['home_pose'], dtype=float)
 STROKE = (PARAMS['mechanism']['stroke_min'], PARAMS['mechanism']['stroke_max'])
 V_MAX = PARAMS['actuator']['max_velocity']                 # m/s
 A_MAX = PARAMS['actuator']['max_acceleration']             # m/s^2
-STEP_MARGIN = PARAMS['safety']['step_margin']              # m per setpoint (SAFETY.md 7)
+STEP_MARGIN = PARAMS['safety']['step_margin']              # m per setpoint (docs/safety.md §7)
 MIN_MZ_CAPACITY = PARAMS['trajectory']['min_wrench_capacity'][2]   # N·m
 F_RATED = PARAMS['actuator']['max_force']                  # N
 K_BODY = np.diag(np.reshape(PARAMS['sim']['stiffness'], (3, 3)))    # N/m, N/m, N·m/rad
@@ -304,6 +304,7 @@ def settled(rec: Record, t0: float, *, speed: float = 2e-4, hold: float = 0.3, t
 # Each test starts from reset(): the order below only matters for speed (the capacity test
 # leaves the ring at the capacity boundary and goes home from there, so it runs last).
 
+# docs/safety.md §5, §19
 def test_stroke_holds_while_the_patient_rises_beyond_it(stack):
     """The trunk rises 60 mm, beyond the stroke (a3 would need > 440 mm). The brace follows
     and stops with its legs inside the stroke: aborted "workspace"; held there, it carries
@@ -338,6 +339,7 @@ def test_stroke_holds_while_the_patient_rises_beyond_it(stack):
     assert rec.driver_state().get('state') == 'enabled'    # no drive limit, no protective stop
 
 
+# docs/safety.md §14, §19
 def test_soft_force_limit_ends_the_mode_when_the_patient_pushes_beyond_it(stack):
     """The trunk drops 30 mm at once and pushes with up to 90 N (~30 N per leg: above the
     20 N soft limit, below the 40 N hard one). The mode ends "soft force limit", nothing
@@ -363,12 +365,13 @@ def test_soft_force_limit_ends_the_mode_when_the_patient_pushes_beyond_it(stack)
     assert rec.driver_state().get('state') == 'enabled'    # the soft limit latches nothing
 
 
+# docs/safety.md §8, §19
 def test_hard_force_limit_latches_a_protective_stop_that_ends_the_mode(stack):
     """The trunk drops 60 mm at once and pushes with up to 140 N (~47 N per leg, above
     safety.force_limit = 40 N; below safety.max_wrench's 150 N). The driver latches a
     protective stop naming the force, the mode ends "aborted" with it, the drives hold (the
     ring does not move on), and the brace holds the patient's push and no more. Then
-    ~/relieve and ~/recover free the patient (SAFETY.md 15)."""
+    ~/relieve and ~/recover free the patient (docs/safety.md §15)."""
     b, rec = stack
     patient = Patient(b)
     reset(b, rec, patient)
@@ -536,6 +539,7 @@ def test_a_position_goal_takes_over_from_a_moving_interaction_without_a_step(sta
         assert df <= df_bound, (name, df)
 
 
+# docs/safety.md §19
 def test_wrench_capacity_holds_while_the_patient_turns_towards_the_singularity(stack):
     """The trunk turns from 5 deg to -3 deg, through the theta = 0 singularity where the
     legs hold no moment. The brace follows and stops where its capacity would fall below

@@ -137,6 +137,7 @@ def test_the_virtual_mass_damper_follows_its_closed_form() -> None:
     assert v[2] == 0.0                                      # no moment: theta at rest
 
 
+# docs/safety.md §19
 def test_wrench_goals_on_held_axes_or_beyond_the_capacity_are_rejected() -> None:
     ctl = controller()
     ctl.start(ctl.mechanism.home_pose)
@@ -179,6 +180,7 @@ def test_stop_decelerates_along_the_direction_and_ends_at_rest() -> None:
     assert np.max(np.abs(steps)) <= np.max(np.abs(v0)) * ctl.p.dt * (1 + 1e-9)
 
 
+# docs/safety.md §5, §19
 def test_pushing_towards_the_stroke_end_stops_inside_the_stroke() -> None:
     ctl = controller()
     mech = ctl.mechanism
@@ -199,6 +201,7 @@ def test_pushing_towards_the_stroke_end_stops_inside_the_stroke() -> None:
     assert np.max(lumbar_eq3(ctl.x)) <= hi[0]
 
 
+# docs/safety.md §19
 def test_the_soft_force_limit_and_a_bad_wrench_stop_the_mode() -> None:
     ctl = controller()
     ctl.start(ctl.mechanism.home_pose)

@@ -326,7 +326,7 @@ def test_shutdown_from_each_primary_state_disables_and_closes(ros, rig, start):
 
 
 def test_deactivate_is_refused_while_a_protective_stop_holds_the_load(ros, rig):
-    """SAFETY.md 15: with a latched stop the drives hold in QUICK STOP ACTIVE; relieve and
+    """docs/safety.md §15: with a latched stop the drives hold in QUICK STOP ACTIVE; relieve and
     recover need the node active, so deactivate is refused (the node stays active)."""
     driver, lc, wire, probe = rig()
     assert lc.set(Transition.TRANSITION_CONFIGURE) and lc.set(Transition.TRANSITION_ACTIVATE)

@@ -37,6 +37,7 @@ def test_planar_pose_round_trip_in_frame():
     (lambda m: setattr(m.pose.orientation, 'x', 0.2), 'quaternion'),   # not unit any more
     (lambda m: setattr(m.pose.orientation, 'w', math.inf), 'non_finite'),
 ])
+# docs/safety.md §6
 def test_malformed_planar_pose_is_rejected_with_reason(mutate, reason):
     msg = pose_msg([0.0, 0.39, 0.0], frame_id='brace_base')
     mutate(msg)

@@ -70,6 +70,7 @@ def _wait(predicate, timeout, what):
 
 # ------------------------------------------------------------------ a dead or closed bring-up
 
+# docs/safety.md §20
 @pytest.mark.ros
 @pytest.mark.slow
 @pytest.mark.parametrize('sig', [signal.SIGHUP, signal.SIGKILL], ids=['SIGHUP', 'SIGKILL'])
@@ -152,6 +153,7 @@ def test_bringup_ended_mid_motion_ends_every_node_with_the_drives_stopped(ros, t
     assert len(targets) > 10
 
 
+# docs/safety.md §20
 @pytest.mark.ros
 @pytest.mark.slow
 def test_a_second_bringup_is_refused_while_one_runs(ros):
@@ -173,6 +175,7 @@ def test_a_second_bringup_is_refused_while_one_runs(ros):
         first.communicate(timeout=30)
 
 
+# docs/safety.md §20
 def test_a_second_master_on_the_bus_is_refused_and_the_first_keeps_running():
     from brace_control.can import BraceMaster, DriverInitializationError
     from brace_control.config import load_device_config
@@ -262,6 +265,7 @@ def _hostile_file(tmp_path: Path, case: str) -> tuple[Path, str]:
     return path, key
 
 
+# docs/safety.md §18
 @pytest.mark.parametrize('case', sorted(HOSTILE))
 @pytest.mark.parametrize('mode', [[], ['--processes']], ids=['one-process', 'processes'])
 def test_every_configuration_mistake_is_a_configuration_error(tmp_path, capsys, case, mode):
@@ -281,6 +285,7 @@ def test_every_configuration_mistake_is_a_configuration_error(tmp_path, capsys, 
 @pytest.mark.slow
 @pytest.mark.parametrize('command', [['brace_control.bringup'], ['brace_control.bringup', '--processes'],
                                      ['brace_control.nodes.kinetics_node']], ids=['one-process', 'processes', 'node'])
+# docs/safety.md §18
 def test_a_configuration_error_exits_2_in_2_s_as_a_process(tmp_path, command):
     path, key = _hostile_file(tmp_path, 'max_force 0')
     args = [str(path)] if 'bringup' in command[0] else ['--ros-args', '--params-file', str(path)]
@@ -308,6 +313,7 @@ def _python_start() -> float:
 
 # ------------------------------------------------------------------ goals nobody can parse
 
+# docs/safety.md §6, §12
 @pytest.mark.ros
 def test_a_goal_that_cannot_be_parsed_is_rejected_with_its_reason(ros, tmp_path):
     """A bag of two goals whose frame_id string length is corrupted (the file intact): the

@@ -568,6 +568,7 @@ def test_cancel_mid_goal_decelerates_short_of_the_goal(op):
 
 # ----------------------------------------------------------------------------- 7: flood
 
+# docs/safety.md §12
 def test_flood_of_200_goals_each_ends_once_and_the_newest_succeeds(op):
     """200 goals at ~1 kHz: every goal exactly one terminal status, its first event
     accepted or rejected; the superseded and preempted ones cancelled naming a newer goal;

@@ -23,7 +23,7 @@ from brace_control.can.supervision import Limits as CanLimits
 from brace_control.can.units import scaling_from_config
 from brace_control.config import ConfigError, DeviceConfig, load_device_config
 from brace_control.mechanisms import MECHANISM_TYPES, Rpr3, mechanism_from_config
-from brace_control.schema import MECHANISM_SCHEMAS
+from brace_control.schema import MECHANISM_SCHEMAS, SCHEMA
 from brace_control.trajectory import Limits as TrajectoryLimits
 
 REPO = Path(__file__).resolve().parent.parent
@@ -298,3 +298,13 @@ def test_ik_node_with_a_misspelled_key_exits_at_start_up_naming_it(tmp_path):
     assert (f"unknown parameter 'safety.force_limt' in {path}; did you mean 'safety.force_limit'?"
             in proc.stderr), proc.stderr
     print(f'ik_node refused the file after {elapsed:.2f} s')
+
+
+def test_no_parameter_is_writable_at_run_time():
+    """The nodes read the device file once; a parameter that ``ros2 param set`` could change
+    would be accepted and ignored (issue 25): every entry is read-only, so the set is refused
+    with ROS's own reason (test_can_driver_node, test_trajectory_node)."""
+    writable = [name for name, spec in SCHEMA.items() if not spec.read_only]
+    writable += [f'mechanism.{name} ({kind})' for kind, specs in MECHANISM_SCHEMAS.items()
+                 for name, spec in specs.items() if not spec.read_only]
+    assert not writable, writable

@@ -37,6 +37,7 @@ def _start(name: str) -> subprocess.Popen:
                             stderr=subprocess.PIPE, text=True)
 
 
+# docs/safety.md §20
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
 @pytest.mark.parametrize('name', NODES)
 def test_node_process_stops_cleanly(ros, name, sig):

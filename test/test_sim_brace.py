@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 import yaml
 
-from brace_control.can.pdo import pdo_mapping_writes
+from brace_control.can.plan import pdo_mapping_writes
 from brace_control.config import ConfigError, DeviceConfig, load_device_config
 from brace_control.mechanisms import load_mechanism
 from brace_control.sim import SimulatedBrace

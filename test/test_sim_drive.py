@@ -25,7 +25,7 @@ import canopen
 import pytest
 import yaml
 
-from brace_control.can.pdo import pdo_mapping_writes
+from brace_control.can.plan import pdo_mapping_writes
 from brace_control.sim import SimulatedBrace
 from brace_control.sim.drive import DriveLimits, SimulatedDrive
 from drive_frames import FrameMaster

@@ -755,7 +755,7 @@ def test_path_arrival_times_are_relative_to_the_header_stamp():
         arrival_times(5.0, [4.0])
 
 
-# ---------------------------------------------------------------- wrench capacity (SAFETY.md 17)
+# ---------------------------------------------------------------- wrench capacity (docs/safety.md §17)
 def _lumbar_capacity(pose, limit=250.0):
     """Independent oracle: rows of J from the paper's eq. 3 (unit leg vectors u_i and
     r_i x u_i), f = J^-T W, capacity per axis = min_i limit / |(J^-T)_{i, axis}|."""

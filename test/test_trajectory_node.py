@@ -338,3 +338,16 @@ def test_platform_limits_of_the_wrong_length_fail_at_start_up(ros):
     from brace_control.config import ConfigError
     with pytest.raises(ConfigError, match='max_jerk needs 3 values'):
         ros.device_node(TrajectoryNode, **(OVERRIDES | {'trajectory.max_jerk': '[1.0, 1.0]'}))
+
+
+def test_ros2_param_set_is_refused_with_a_reason_and_changes_nothing(ros):
+    """Parameters are read once, at start-up (README, "Parameters"): a set at run time that
+    would be accepted and ignored is refused instead, saying so, and the value stays."""
+    from rclpy.parameter import Parameter
+    node = ros.device_node(TrajectoryNode, **OVERRIDES)
+    before = {n: node.get_parameter(n).value for n in ('trajectory.fitts_a', 'trajectory.profile')}
+    results = node.set_parameters([Parameter('trajectory.fitts_a', value=5.0),
+                                   Parameter('trajectory.profile', value='scurve')])
+    for r in results:
+        assert not r.successful and 'read-only' in r.reason, r.reason
+    assert {n: node.get_parameter(n).value for n in before} == before

@@ -15,11 +15,11 @@ Part of :class:`~.master.BraceMaster` (a mixin; the SYNC thread is the only call
    when their content changed (every SYNC while moving; at rest every ``RPDO_REFRESH``
    SYNCs: a synchronous RPDO not received keeps its value), then SYNC.
 
-The setpoint stream (teleoperation): a new setpoint is step-checked (SAFETY 7) over the
+The setpoint stream (teleoperation): a new setpoint is step-checked (docs/safety.md §7) over the
 smaller of the time between its stamp and the previous one and the time between their
 arrivals, plus one period (a sender's clock cannot license a jump); setpoints whose stamps
 do not increase are counted as rejected and reported once per burst; no setpoint for
-``command_timeout`` stops the stream (SAFETY 1): the executor decelerates along the current
+``command_timeout`` stops the stream (docs/safety.md §1): the executor decelerates along the current
 direction and holds.
 """
 from __future__ import annotations
@@ -192,7 +192,7 @@ class CycleMixin:
         for d in self._drives:
             qi = float(q[d.index])
             target = round(qi * cpu)
-            # SAFETY 7 at the source: the executor never steps (it advances at most 1.5
+            # docs/safety.md §7 at the source: the executor never steps (it advances at most 1.5
             # periods per cycle within v_max); a larger step is a fault, not a command
             step = abs(target - d.target) / cpu
             if d.sample is not None and step > 2.0 * limits.v_max * period + limits.step_margin \
@@ -220,7 +220,7 @@ class CycleMixin:
             self.executor.stream_stale()
 
     def _accept_setpoint(self, sp: _Setpoint) -> None:
-        """SAFETY 7 on a new setpoint, then hand it to the executor (caller holds _exec_lock)."""
+        """docs/safety.md §7 on a new setpoint, then hand it to the executor (caller holds _exec_lock)."""
         limits = self.limits
         period = self.config.period
         self._last_sp_seq = sp.seq
@@ -318,7 +318,7 @@ class CycleMixin:
 
     # ------------------------------------------------------------------ soft force limit
     def _begin_soft_stop(self, t_wake: float) -> None:
-        """SAFETY.md 14: a leg above the soft limit while the motion presses on (or a soft
+        """docs/safety.md §14: a leg above the soft limit while the motion presses on (or a soft
         limit the node found: :meth:`~.master.BraceMaster.soft_stop`, its reason given):
         brake along the path and hold; reported as the motion's stop, nothing latches."""
         pending, self._soft_stop = self._soft_stop, None
@@ -344,7 +344,7 @@ class CycleMixin:
 
     # ------------------------------------------------------------------ relief
     def _feed_relief(self, relief: 'Relief', t_wake: float) -> None:
-        """One cycle of a relief (SAFETY.md 15): every actuator moves the way that unloads its
+        """One cycle of a relief (docs/safety.md §15): every actuator moves the way that unloads its
         own leg, at most ``speed`` (one vector, scaled as a whole), until every force is below
         the release force; then the command decelerates and holds."""
         def velocity(forces: np.ndarray) -> np.ndarray:

@@ -233,7 +233,7 @@ class PathExecutor:
         """How far (actuator-space norm) the command goes on: to the running trajectory's
         end, or for a setpoint stream (its end unknown) its speed times ``stream_horizon``;
         ``None`` at rest, braking, or in interaction (the motions a soft limit may stop,
-        SAFETY.md 14)."""
+        docs/safety.md §14)."""
         if self.braking:
             return None
         if self.state is ExecutionState.STREAM:

@@ -25,7 +25,7 @@ stream (teleoperation). :meth:`BraceMaster.execution_events` reports what happen
 trajectory. A received trajectory was checked whole, so it runs to its end unless
 cancelled, halted or stopped by a fault.
 
-Safety (SAFETY.md 1–9, 11; :mod:`.supervision`): any fault latches a protective stop until
+Safety (docs/safety.md §1–§9, §11; :mod:`.supervision`): any fault latches a protective stop until
 :meth:`BraceMaster.recover`, which resets drive faults and clears the latch only when
 every cause is gone. A fault after which the drives still follow (force, wrench, step,
 following error, speed) first brakes the motion along its path, all axes together; then
@@ -241,11 +241,11 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
 
         ``stamp`` (s, any clock the sender keeps) is the setpoint's sample instant, e.g. its
         message header stamp; ``velocities`` (unit/s) the sender's rate, used as the
-        stream's feed-forward. The cycle step-checks it (SAFETY 7: a violation latches a
+        stream's feed-forward. The cycle step-checks it (docs/safety.md §7: a violation latches a
         STEP_LIMIT stop), takes it over from a running trajectory, and stops the stream
-        when no setpoint arrives for ``safety.command_timeout`` (SAFETY 1).
+        when no setpoint arrives for ``safety.command_timeout`` (docs/safety.md §1).
 
-        :raises ValueError: wrong length, non-finite, or outside the stroke (SAFETY 5, 6);
+        :raises ValueError: wrong length, non-finite, or outside the stroke (docs/safety.md §5, §6);
             nothing is sent.
         """
         arr = self._checked_positions(positions, 'target')
@@ -396,7 +396,7 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
 
     def relieve(self, *, speed_share: float = 0.1, max_travel: float | None = None,
                 timeout: float = 20.0) -> str:
-        """Back a loaded brace off after a protective stop (SAFETY.md 15): nobody stays clamped.
+        """Back a loaded brace off after a protective stop (docs/safety.md §15): nobody stays clamped.
 
         With a stop latched whose cause is load (force, wrench, saturation, following error,
         step, speed: :data:`~.monitors.RELIEVABLE`), the drives are enabled again under
@@ -497,8 +497,8 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
             return self.executor.distance_to_go(stream_horizon)
 
     def soft_stop(self, reason: str) -> bool:
-        """A soft limit found outside the drives' samples (the node's platform wrench, SAFETY.md
-        14): the running trajectory or setpoint stream brakes along its path at the next SYNC
+        """A soft limit found outside the drives' samples (the node's platform wrench, docs/safety.md
+        §14): the running trajectory or setpoint stream brakes along its path at the next SYNC
         and holds, reported stopped with ``reason``; nothing latches. ``False`` (nothing
         done) when no such motion runs, it already brakes, or a soft stop is pending."""
         if self.distance_to_go() is None or self._soft_stop is not None:
@@ -515,7 +515,7 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
         :data:`TAKE_UP_LAG_SYNCS` SYNCs its load cell takes to say so (the legs' stiffness);
         ``timeout`` (s) by default covers ``max_travel`` at that speed, at most a minute.
 
-        After a relief (SAFETY.md 15) a cable brace's cables hang slack: their lengths no
+        After a relief (docs/safety.md §15) a cable brace's cables hang slack: their lengths no
         longer agree with any pose, and a motion planned from the pose would start far from
         them. Taken up, the lengths are the cables' at the platform's true pose again.
 

@@ -1,7 +1,7 @@
 """Supervision in the cycle: the per-SYNC monitors and the "cause still present" predicates.
 
 Part of :class:`~.master.BraceMaster` (a mixin). :meth:`MonitorMixin._monitor` runs in the
-SYNC thread on each drive's newest TPDO1 and heartbeat (SAFETY.md 2, 4, 8, 9, 11); every
+SYNC thread on each drive's newest TPDO1 and heartbeat (docs/safety.md §2, §4, §8, §9, §11); every
 fault it latches carries a predicate that ``recover()`` evaluates (the fault table is in
 :mod:`.supervision`). :meth:`MonitorMixin._on_fault` is the first reaction to a latched
 fault: stop tracking commands; when the drives are healthy and the fault is one the command
@@ -73,7 +73,7 @@ class MonitorMixin:
         return lambda: d.state in (State402.FAULT, State402.FAULT_REACTION_ACTIVE)
 
     def _stale(self, d: _Drive, *, timed: bool = True) -> bool:
-        """No TPDO1 from ``d`` for ``stale_periods`` SYNCs (SAFETY 9).
+        """No TPDO1 from ``d`` for ``stale_periods`` SYNCs (docs/safety.md §9).
 
         Judged on what was received, in bus order, so a receive thread (or a simulator)
         that runs late does not make a drive look silent: ``d`` is stale when the other
@@ -106,7 +106,8 @@ class MonitorMixin:
         return any(abs(d.velocity) > 0.01 * self.limits.v_max for d in self._drives)
 
     def _monitor(self) -> None:
-        """Per-cycle monitors on each drive's latest TPDO1 and heartbeat (SAFETY 2, 4, 8, 9, 11)."""
+        """Per-cycle monitors on each drive's latest TPDO1 and heartbeat
+        (docs/safety.md §2, §4, §8, §9, §11)."""
         limits = self.limits
         now = time.monotonic()
         tracking = self._tracking and self.state is MasterState.ENABLED
@@ -166,7 +167,7 @@ class MonitorMixin:
                                                       else self._sample_condition(d, kind)))
                 if kind is FaultKind.POSITION_JUMP:
                     self.homed = False         # the encoder reference is suspect
-            # SAFETY.md 14: above the soft limit a motion that keeps pressing is braked (the
+            # docs/safety.md §14: above the soft limit a motion that keeps pressing is braked (the
             # cycle does it); a motion that unloads the leg (the force falling) goes on
             f = abs(s.force)
             trend = d.force_trend

@@ -1,7 +1,8 @@
 """The default PDO layouts of docs/can.md, the SDO write, and frame sizes on the wire.
 
 The mapping a drive gets is planned against its own dictionary (:mod:`.plan`, from the
-YAML's ``can.rpdo`` / ``can.tpdo``); these are the defaults:
+YAML's ``can.rpdo`` / ``can.tpdo``; :func:`.plan.pdo_mapping_writes` is the default one);
+these are the defaults:
 
 RPDO1 (0x200 + id, 6 bytes): 6040h controlword U16 + 607Ah target position I32.
 RPDO2 (0x300 + id, 4 bytes): 60B1h velocity offset I32 (counts/s, the velocity
@@ -17,7 +18,7 @@ import struct
 from dataclasses import dataclass
 
 __all__ = [
-    'RPDO1', 'RPDO2', 'TPDO1', 'SdoWrite', 'pdo_mapping_writes', 'frame_bits',
+    'RPDO1', 'RPDO2', 'TPDO1', 'SdoWrite', 'frame_bits',
     'LOAD_CELL_INPUT', 'TORQUE_ACTUAL',
 ]
 
@@ -44,22 +45,6 @@ class SdoWrite:
 
     def data(self) -> bytes:
         return struct.pack('<' + self.fmt, self.value)
-
-
-def pdo_mapping_writes(node_id: int, *, force_object: int = LOAD_CELL_INPUT) -> list[SdoWrite]:
-    """docs/can.md's default mapping (RPDO1, RPDO2, TPDO1; the other PDOs disabled) on a drive
-    with 4 RPDOs and 4 TPDOs, ``config/lumbar_drive.eds``: what :func:`~.plan.plan_drive`
-    plans for that dictionary (``force_object``: the load cell's index, sub-index 0)."""
-    from .dictionary import Dictionary, ObjectRef
-    from .plan import BootSettings, plan_drive
-    from ..config import config_dir
-    d = Dictionary(config_dir() / 'lumbar_drive.eds', node_id)
-    plan = plan_drive(d, BootSettings(
-        node_id=node_id, name=f'node {node_id}', master_node_id=127, master_heartbeat_ms=100,
-        drive_heartbeat_ms=50, period_us=2000, interpolation=(2, -3), homing_method=0,
-        following_error_counts=1, velocity_counts=1, acceleration_counts=1, soft_limits_counts=None,
-        home_offset_counts=None, load_cell=ObjectRef(force_object)))
-    return plan.mapping
 
 
 def frame_bits(dlc: int, *, extended: bool = False) -> int:

@@ -33,11 +33,11 @@ from typing import Any
 
 from .dictionary import STRUCT_CODES, Dictionary, ObjectRef, type_name
 from .errors import DriverInitializationError
-from .pdo import SdoWrite
+from .pdo import LOAD_CELL_INPUT, SdoWrite
 
 __all__ = ['DictionaryError', 'PdoEntry', 'PdoLayout', 'PdoSpec', 'BootSettings', 'BootPlan',
            'ModulePlan', 'plan_drive', 'plan_module', 'pdo_specs', 'default_cob_id',
-           'RPDO_ROLES', 'TPDO_ROLES']
+           'RPDO_ROLES', 'TPDO_ROLES', 'pdo_mapping_writes']
 
 #: objects the master fills in the RPDOs it sends, by role
 RPDO_ROLES: dict[ObjectRef, str] = {
@@ -631,3 +631,17 @@ def plan_module(d: Dictionary, *, node_id: int, objects: Sequence[ObjectRef], tp
             + '. Nothing was sent')
     mapping = _mapping_writes(d, [], 'rpdo', node_id) + _mapping_writes(d, [lay], 'tpdo', node_id)
     return ModulePlan(node_id, d, p.writes, mapping, lay, heartbeat, p.notes, p.warnings)
+
+
+def pdo_mapping_writes(node_id: int, *, force_object: int = LOAD_CELL_INPUT) -> list[SdoWrite]:
+    """docs/can.md's default mapping (RPDO1, RPDO2, TPDO1; the other PDOs disabled) on a drive
+    with 4 RPDOs and 4 TPDOs, ``config/lumbar_drive.eds``: what :func:`plan_drive`
+    plans for that dictionary (``force_object``: the load cell's index, sub-index 0)."""
+    from ..config import config_dir
+    d = Dictionary(config_dir() / 'lumbar_drive.eds', node_id)
+    plan = plan_drive(d, BootSettings(
+        node_id=node_id, name=f'node {node_id}', master_node_id=127, master_heartbeat_ms=100,
+        drive_heartbeat_ms=50, period_us=2000, interpolation=(2, -3), homing_method=0,
+        following_error_counts=1, velocity_counts=1, acceleration_counts=1, soft_limits_counts=None,
+        home_offset_counts=None, load_cell=ObjectRef(force_object)))
+    return plan.mapping

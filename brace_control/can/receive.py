@@ -139,7 +139,7 @@ class ReceiveMixin:
         return t
 
     def heartbeat_age(self, d: _Node) -> float:
-        """s since drive ``d``'s last heartbeat, on the bus's clock (SAFETY 4).
+        """s since drive ``d``'s last heartbeat, on the bus's clock (docs/safety.md §4).
 
         Judged on what was received, like :meth:`~.monitors.MonitorMixin._stale`: while the
         receive thread is behind by less than the consumer time, the age is the span of

@@ -219,17 +219,13 @@ def load_cell_source(cfg: DeviceConfig) -> tuple[ObjectRef | None, LoadCellModul
 
 def _home_lengths(cfg: DeviceConfig, mech: Any = None) -> tuple[float, ...] | None:
     """IK(home_pose) of the device's mechanism (``mech``, else built from ``cfg``), or
-    ``None`` if the model is unavailable."""
-    if mech is not None:
-        return tuple(float(x) for x in mech.inverse(mech.home_pose))
-    if 'mechanism' not in cfg:
-        return None
-    try:
-        from ..mechanisms import mechanism_from_config
+    ``None`` if the device file has no mechanism section."""
+    if mech is None:
+        if 'mechanism' not in cfg:
+            return None
+        from ..mechanisms import mechanism_from_config     # deferred: mechanisms is heavy
         mech = mechanism_from_config(cfg)
-        return tuple(float(x) for x in mech.inverse(mech.home_pose))
-    except ImportError:
-        return None
+    return tuple(float(x) for x in mech.inverse(mech.home_pose))
 
 
 @dataclass(frozen=True)
@@ -396,7 +392,7 @@ STROKE_MARGIN = 0.001
 
 class Relief:
     """One relief in progress (:meth:`~.master.BraceMaster.relieve`), shared by the API thread
-    that waits and the SYNC thread that moves (SAFETY.md 15)."""
+    that waits and the SYNC thread that moves (docs/safety.md §15)."""
 
     def __init__(self, *, release_force: float, speed: float, max_travel: float, deadline: float,
                  start: np.ndarray, forces: np.ndarray, relievable: frozenset,

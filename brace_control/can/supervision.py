@@ -1,6 +1,6 @@
 """Fault model of the CAN layer: what counts as a fault, how it latches, when it may clear.
 
-SAFETY.md items 1–9 and 11. Any fault puts the master into a protective stop (quick
+docs/safety.md §1–§9 and §11. Any fault puts the master into a protective stop (quick
 stop 6040h = 0x0002, targets held) and stays latched until an explicit ``recover()``;
 ``recover()`` clears the latch only when every fault's cause is gone (each
 :class:`Fault` carries a ``still_present`` predicate the master evaluates then).
@@ -51,6 +51,7 @@ from typing import Any
 import can
 
 from ..config import ConfigError, as_device_config
+from ..schema import release_force, soft_force_limit
 from .units import AxisScaling
 
 __all__ = [
@@ -62,21 +63,21 @@ __all__ = [
 class FaultKind(enum.Enum):
     """Why the master stopped; ``value`` is the short text used in reports."""
 
-    BOOT_TIMEOUT = 'boot timeout'                  # SAFETY 2
-    HEARTBEAT_LOST = 'heartbeat lost'              # SAFETY 2
-    NMT_STATE = 'drive left OPERATIONAL'           # SAFETY 2 (reboot, NMT stop)
-    BUS_OFF = 'bus off'                            # SAFETY 3
-    SEND_FAILED = 'send failed'                    # SAFETY 3
-    EMCY = 'emergency'                             # SAFETY 4
-    DRIVE_FAULT = 'drive fault'                    # SAFETY 4 (statusword bit 3)
-    STEP_LIMIT = 'step limit'                      # SAFETY 5, 7
-    OVERSPEED = 'overspeed'                        # SAFETY 8
-    FORCE_LIMIT = 'force limit'                    # SAFETY 8
-    WRENCH_LIMIT = 'wrench limit'                  # SAFETY 8 (reported by the node)
-    STALE_FEEDBACK = 'stale feedback'              # SAFETY 9
-    POSITION_JUMP = 'impossible position jump'     # SAFETY 9
-    LOAD_CELL_SATURATED = 'load cell saturated'    # SAFETY 9
-    FOLLOWING_ERROR = 'following error'            # SAFETY 11
+    BOOT_TIMEOUT = 'boot timeout'                  # docs/safety.md §2
+    HEARTBEAT_LOST = 'heartbeat lost'              # docs/safety.md §2
+    NMT_STATE = 'drive left OPERATIONAL'           # docs/safety.md §2 (reboot, NMT stop)
+    BUS_OFF = 'bus off'                            # docs/safety.md §3
+    SEND_FAILED = 'send failed'                    # docs/safety.md §3
+    EMCY = 'emergency'                             # docs/safety.md §4
+    DRIVE_FAULT = 'drive fault'                    # docs/safety.md §4 (statusword bit 3)
+    STEP_LIMIT = 'step limit'                      # docs/safety.md §5, §7
+    OVERSPEED = 'overspeed'                        # docs/safety.md §8
+    FORCE_LIMIT = 'force limit'                    # docs/safety.md §8
+    WRENCH_LIMIT = 'wrench limit'                  # docs/safety.md §8 (reported by the node)
+    STALE_FEEDBACK = 'stale feedback'              # docs/safety.md §9
+    POSITION_JUMP = 'impossible position jump'     # docs/safety.md §9
+    LOAD_CELL_SATURATED = 'load cell saturated'    # docs/safety.md §9
+    FOLLOWING_ERROR = 'following error'            # docs/safety.md §11
     CYCLE_STOPPED = 'SYNC thread stopped'          # the master's own cycle died
     FOREIGN_MASTER = 'another master on the bus'   # SYNC / our heartbeat id from someone else
     EXTERNAL = 'external stop'                     # reported by a caller
@@ -257,16 +258,15 @@ class Limits:
         if consumer <= producer:
             raise ConfigError(
                 f'parameter can.heartbeat_consumer_ms = {consumer:g} must exceed '
-                f'can.drive_heartbeat_ms = {producer:g} (SAFETY.md item 2)')
+                f'can.drive_heartbeat_ms = {producer:g} (docs/safety.md §2)')
         force_limit = float(get('safety.force_limit'))
-        soft = float(get('safety.soft_force_limit') or 0.8 * force_limit)
-        release = float(get('safety.release_force') or 0.2 * force_limit)
+        soft, release = soft_force_limit(cfg), release_force(cfg)
         if not 0.0 < soft <= force_limit:
             raise ConfigError(f'parameter safety.soft_force_limit = {soft:g} must be in (0, '
-                              f'safety.force_limit = {force_limit:g}] (SAFETY.md 14)')
+                              f'safety.force_limit = {force_limit:g}] (docs/safety.md §14)')
         if not 0.0 < release < soft:
             raise ConfigError(f'parameter safety.release_force = {release:g} must be in (0, '
-                              f'safety.soft_force_limit = {soft:g}) (SAFETY.md 15)')
+                              f'safety.soft_force_limit = {soft:g}) (docs/safety.md §15)')
         return cls(
             period=1.0 / float(get('can.sync_rate_hz')),
             v_max=float(get('actuator.max_velocity')),
@@ -288,10 +288,10 @@ class Limits:
         )
 
     def max_step(self, current: float, new: float, dt: float, index: int | None = None) -> float:
-        """Largest allowed |new − current| over ``dt``: ``v·dt + margin`` (SAFETY 7).
+        """Largest allowed |new − current| over ``dt``: ``v·dt + margin`` (docs/safety.md §7).
 
         ``v`` is ``v_max``, ramped down near the stroke end being approached
-        (``v ≤ √(2·a_max·d)``, ``d`` the distance from ``new`` to that end; SAFETY 5).
+        (``v ≤ √(2·a_max·d)``, ``d`` the distance from ``new`` to that end; docs/safety.md §5).
         """
         lo, hi = self.stroke_of(index)
         d = (hi - new) if new > current else (new - lo)
@@ -340,10 +340,10 @@ def _actuator_limits(cfg: Mapping[str, Any], mechanism: Any = None
         return tuple((float(a), float(b)) for a, b in zip(lo, hi))
     if not isinstance(cfg.get('mechanism'), Mapping) or 'type' not in cfg['mechanism']:
         return None
+    from ..mechanisms import mechanism_from_config
     try:
-        from ..mechanisms import mechanism_from_config
         lo, hi = mechanism_from_config(cfg).actuator_limits
-    except (ImportError, ValueError, KeyError, TypeError):
+    except (ValueError, KeyError, TypeError):      # not a buildable mechanism section
         return None
     return tuple((float(a), float(b)) for a, b in zip(lo, hi))
 

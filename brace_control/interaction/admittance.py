@@ -17,7 +17,7 @@ they had when the mode started (hybrid control).
     v[k+1] = v[k] p + (1 - p) e[k] / D,            p = exp(-D dt / M)             (2)
     x[k+1] = x[k] + e[k] dt / D + (v[k] - e[k] / D) (M / D) (1 - p)
 
-Limits (SAFETY.md 5, 10, 14, 17), never a silent clamp:
+Limits (docs/safety.md §5, §10, §14, §17), never a silent clamp:
 
 * the actuator speed: ``|J v|`` within ``limit_margin x actuator.max_velocity``: the velocity
   vector is scaled as a whole (the virtual model saturates; :attr:`AdmittanceController.
@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 
 from ..mechanisms import UnreachablePose
+from ..schema import soft_force_limit
 
 #: share of each actuator's range kept clear at both ends: the ring must come to rest (on its
 #: braking pose) this far from a stroke end, so the drives' own limits (607Dh) never trip
@@ -142,9 +143,8 @@ class AdmittanceParams:
             raise ValueError(f'interaction.goal_rate: expected numbers >= 0 (0: a step), got {rate.tolist()!r}')
         if np.any(max_goal < 0.0):
             raise ValueError(f'interaction.max_goal_wrench: expected numbers >= 0, got {max_goal.tolist()!r}')
-        act, safety, traj = cfg['actuator'], cfg['safety'], cfg['trajectory']
-        force_limit = float(safety['force_limit'])
-        soft = float(safety.get('soft_force_limit', 0.0)) or 0.8 * force_limit
+        act, traj = cfg['actuator'], cfg['trajectory']
+        soft = soft_force_limit(cfg)
         n = int(mechanism.n_actuators)
         cap = traj.get('min_wrench_capacity')
         cap_arr = None if cap is None else np.asarray(cap, dtype=float)

@@ -16,7 +16,7 @@ ros2_control's hardware components); ``/can_driver_node/change_state``, ``get_st
   the node stays unconfigured;
 * **inactive**: the drives are configured, OPERATIONAL and SWITCH ON DISABLED (power stage
   off). The SYNC cycle runs from the boot on: the boot proves each drive answers SYNC with its
-  TPDO, and the supervision (heartbeats, stale encoders, EMCY; SAFETY.md 2, 9) judges those
+  TPDO, and the supervision (heartbeats, stale encoders, EMCY; docs/safety.md §2, §9) judges those
   answers; a fault while inactive is latched and reported. Nothing can move: motion services
   are refused, trajectories and setpoints rejected, no ``/brace/joint_states`` (ros2_control's
   INACTIVE: "states can be read, command interfaces are not available");
@@ -27,7 +27,7 @@ ros2_control's hardware components); ``/can_driver_node/change_state``, ``get_st
   one time base), then disable the drives (SWITCH ON DISABLED) and stop publishing. Refused
   (FAILURE, the node stays active) while a protective stop is latched and a drive still holds
   the load in QUICK STOP ACTIVE: ``~/relieve`` and ``~/recover`` need the node active
-  (SAFETY.md 15: nobody stays clamped); ``shutdown`` powers the drives off regardless;
+  (docs/safety.md §15: nobody stays clamped); ``shutdown`` powers the drives off regardless;
 * ``cleanup``: close the bus (drives disabled, NMT pre-operational, SYNC stopped, the
   simulated brace powered off; it keeps its physical pose for the next ``configure``);
 * ``shutdown`` (from any state) closes as cleanup does; an exception inside a transition is
@@ -55,9 +55,9 @@ When active:
   ``position`` in m, optional ``velocity`` as feed-forward): the teleoperation stream,
   tracked with one scale for all axes. Malformed input (unknown / missing names, wrong
   lengths, NaN, outside the stroke) is rejected with a throttled error; nothing is sent
-  (SAFETY.md 5, 6). No setpoint for ``safety.command_timeout``: decelerate along the
-  current direction and hold (SAFETY.md 1); a step beyond the step limit: protective stop
-  (SAFETY.md 7);
+  (docs/safety.md §5, §6). No setpoint for ``safety.command_timeout``: decelerate along the
+  current direction and hold (docs/safety.md §1); a step beyond the step limit: protective stop
+  (docs/safety.md §7);
 * publishes ``/brace/execution_status`` (``diagnostic_msgs/DiagnosticStatus``, one message
   per event of a trajectory: ``name`` = ``can_driver_node/trajectory/<stamp ns>``,
   ``message`` = accepted | rejected | started | finished | stopped | preempted, ``values``
@@ -74,7 +74,7 @@ When active:
 * services ``~/enable``, ``~/disable``, ``~/halt``, ``~/recover``, ``~/home``, ``~/relieve``
   (``std_srvs/Trigger``, like ros2_canopen; the message says why on failure). ``~/home`` only
   with the drives disabled. ``~/relieve`` backs a loaded brace off after a protective stop
-  (SAFETY.md 15): slowly, under force supervision, the way that unloads each leg, until
+  (docs/safety.md §15): slowly, under force supervision, the way that unloads each leg, until
   every force is below ``safety.release_force``; ``~/recover`` then succeeds;
 * above ``safety.soft_force_limit`` a motion that keeps pressing decelerates along its path
   and holds (its trajectory reported stopped with the leg, the force and the wrench capacity
@@ -82,7 +82,7 @@ When active:
 * ``/diagnostics``: one status per drive (NMT, 402 state, last EMCY, heartbeat age),
   the bus (load, error state) and the SYNC cycle (period error p50/p99, overruns);
 * monitors the platform wrench from the load cells against ``safety.max_wrench``
-  (SAFETY.md 8) and latches a protective stop beyond it.
+  (docs/safety.md §8) and latches a protective stop beyond it.
 
 With ``can.sim: true`` the simulated brace (:mod:`brace_control.sim`) is started in this
 process on the same python-can channel before the master boots (a ``virtual`` bus only
@@ -274,11 +274,8 @@ class CanDriverNode(LifecycleNode):
         self.publish_state(force=True)
 
     def _mechanism(self) -> Any:
-        try:
-            from ..mechanisms import mechanism_from_config
-            return self.cfg.model or mechanism_from_config(self.cfg)
-        except ImportError:
-            return None
+        from ..mechanisms import mechanism_from_config
+        return self.cfg.model or mechanism_from_config(self.cfg)
 
     def _float_legs(self) -> Any:
         """:meth:`PlanarRprFloats.of <brace_control.mechanisms.planar_floats.PlanarRprFloats.of>`
@@ -849,7 +846,7 @@ class CanDriverNode(LifecycleNode):
                                              self._wrench_limit[:w.size]))
 
     def _check_wrench(self, q: np.ndarray, forces: np.ndarray) -> None:
-        """SAFETY.md 8: platform wrench from the load cells beyond ``safety.max_wrench``."""
+        """docs/safety.md §8: platform wrench from the load cells beyond ``safety.max_wrench``."""
         w = self._wrench(q, forces)
         if w is None:
             return
@@ -866,7 +863,7 @@ class CanDriverNode(LifecycleNode):
                                time.monotonic())
 
     def _watch_wrench(self, load: np.ndarray, limit: np.ndarray, q: np.ndarray, now: float) -> None:
-        """The soft tier of the wrench limit (SAFETY.md 14 for the platform wrench): a motion
+        """The soft tier of the wrench limit (docs/safety.md §14 for the platform wrench): a motion
         whose wrench on the body rises so that, at its rise per actuator displacement over
         the last :data:`SOFT_WRENCH_WINDOW_S`, it would pass ``safety.max_wrench`` by the end
         of the motion is braked along its path at once and holds; its goal is aborted with
@@ -1002,7 +999,8 @@ class CanDriverNode(LifecycleNode):
         return self.master.relieve()
 
     def _soft_limit_context(self, index: int, force: float) -> str:
-        """What a soft-limit stop adds to its reason: the wrench capacity at the pose (SAFETY.md 14)."""
+        """What a soft-limit stop adds to its reason: the wrench capacity at the pose
+        (docs/safety.md §14)."""
         m = self.master
         if m is None or self.mechanism is None or not hasattr(self.mechanism, 'wrench_capacity'):
             return ''

@@ -18,7 +18,7 @@ previous accepted setpoint, 0 for the first one or after a gap).
 A setpoint that is malformed (NaN/inf, wrong frame, a non-planar quaternion for a planar
 device) or unreachable (outside the stroke, singular) is rejected: a throttled warning,
 a ``/diagnostics`` status with the reason, nothing published; the last valid setpoint
-stays in force downstream (SAFETY.md 6, 10). The output keeps the setpoint's stamp, so
+stays in force downstream (docs/safety.md §6, §10). The output keeps the setpoint's stamp, so
 the driver's staleness check and the latency bench see when the pose was commanded.
 """
 from __future__ import annotations

@@ -81,9 +81,9 @@ TRAJECTORY_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                             reliability=ReliabilityPolicy.RELIABLE,
                             durability=DurabilityPolicy.VOLATILE)
 #: Setpoint streams: reliable, depth 10. A best-effort depth-1 stream would let DDS drop a
-#: setpoint whenever a callback runs late and the driver's step check (SAFETY.md 7) would
+#: setpoint whenever a callback runs late and the driver's step check (docs/safety.md §7) would
 #: see a double step; 10 samples absorb jitter without a backlog the staleness check
-#: would miss (stale setpoints stop the stream, SAFETY.md 1).
+#: would miss (stale setpoints stop the stream, docs/safety.md §1).
 SETPOINT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                           reliability=ReliabilityPolicy.RELIABLE,
                           durability=DurabilityPolicy.VOLATILE)

@@ -30,7 +30,7 @@ Topics and services (all in the device's ``base_frame``):
   known ``final_error`` (per pose coordinate) and ``min_wrench_capacity``.
 * ``~/cancel`` (``std_srvs/Trigger``): decelerate to rest along the path and hold.
 
-How a goal ends (SAFETY.md 12, 16; :class:`~brace_control.trajectory.TrajectoryRunner`):
+How a goal ends (docs/safety.md §12, §16; :class:`~brace_control.trajectory.TrajectoryRunner`):
 it is rejected while the drives are not enabled (``/brace/driver_state``, latched) and when
 it cannot be planned within the limits; it succeeds only when the driver reported its
 motion finished (``/brace/execution_status``) and the estimated pose (``/brace/pose``,

@@ -21,18 +21,29 @@ from __future__ import annotations
 
 import errno
 from enum import IntFlag
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import can
 
 from ..can.cia402 import EmcyCode
 from .device import SimulatedDevice
 from .drive import SimulatedDrive
+from .host import SimBus
 
-if TYPE_CHECKING:
-    from .brace import SimulatedBrace
+__all__ = ['FaultInjector', 'FaultTarget', 'ErrorClass', 'CtrlStatus', 'error_frame']
 
-__all__ = ['FaultInjector', 'ErrorClass', 'CtrlStatus', 'error_frame']
+
+class FaultTarget(Protocol):
+    """What :class:`FaultInjector` needs of a simulated brace (``SimulatedBrace`` is one):
+    its drives by node id, its bus host, and the load-cell overrides. A protocol, so that
+    this module does not import ``sim/brace.py``, which imports it."""
+
+    host: SimBus
+    node_ids: tuple[int, ...]
+    load_cell_override: list[float | None]
+    rated_force: float
+
+    def drive(self, node_id: int) -> SimulatedDrive: ...
 
 
 class ErrorClass(IntFlag):
@@ -88,9 +99,10 @@ def error_frame(kind: str) -> can.Message:
 
 
 class FaultInjector:
-    """Inject faults into a :class:`~brace_control.sim.brace.SimulatedBrace`."""
+    """Inject faults into a simulated brace (:class:`FaultTarget`, e.g.
+    :class:`~brace_control.sim.brace.SimulatedBrace`)."""
 
-    def __init__(self, brace: 'SimulatedBrace') -> None:
+    def __init__(self, brace: FaultTarget) -> None:
         self._brace = brace
         self._patched_bus: Any = None
 

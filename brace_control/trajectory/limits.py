@@ -1,4 +1,4 @@
-"""Check a planned motion against the mechanism before anything moves (SAFETY.md 5, 10).
+"""Check a planned motion against the mechanism before anything moves (docs/safety.md §5, §10).
 
 Along the sampled path every pose must be reachable (inverse kinematics within the
 stroke: the mechanism's :class:`~brace_control.mechanisms.base.UnreachablePose`),
@@ -316,7 +316,7 @@ def executed_actuator_motion(mech: 'Mechanism', trajectory: Trajectory
 
 def check_capacity(mech: 'Mechanism', trajectory: Trajectory, limits: Limits, *,
                    samples: int | None = None) -> tuple[PathCheck, np.ndarray | None]:
-    """The path's minimum wrench capacity per axis (SAFETY.md 17) against
+    """The path's minimum wrench capacity per axis (docs/safety.md §17) against
     ``limits.min_wrench_capacity``: ``(check, minima)``; ``minima`` is ``None`` when the
     mechanism has no capacity model or nothing is checked.
 

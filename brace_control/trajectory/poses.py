@@ -1,4 +1,4 @@
-"""Arrival times of a ``nav_msgs/Path`` goal, validated (SAFETY.md 6).
+"""Arrival times of a ``nav_msgs/Path`` goal, validated (docs/safety.md §6).
 
 The node reads the stamps (s) and poses (with :mod:`brace_control.nodes.msgs`); the
 timing rules live here so they are testable without ROS.

@@ -4,7 +4,7 @@
 when the new motion takes over (``lookahead`` from now: continuous position, velocity and
 acceleration), hands the whole motion out once (the node publishes it; the driver samples
 it in its SYNC loop), and decides how each goal ends from what the rest of the stack
-reports (SAFETY.md 12, 16):
+reports (docs/safety.md §12, §16):
 
 * **succeeded** only when the driver reported the motion finished, the drives were enabled
   all along, and the estimated platform pose (load aware) came within ``pose_tolerance``

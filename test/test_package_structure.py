@@ -1,0 +1,140 @@
+"""The package's own structure, read from its source with ``ast`` (not by importing it):
+no import cycle between its modules, no ``except ImportError`` around its own modules, and
+one list of the nodes that every copy follows."""
+from __future__ import annotations
+
+import ast
+import re
+from pathlib import Path
+
+from brace_control.nodes import NODE_NAMES
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / 'brace_control'
+
+
+def modules() -> dict[str, tuple[Path, bool]]:
+    """Dotted module name -> (file, is a package's ``__init__``)."""
+    out = {}
+    for path in PACKAGE.rglob('*.py'):
+        parts = list(path.relative_to(ROOT).with_suffix('').parts)
+        is_pkg = parts[-1] == '__init__'
+        out['.'.join(parts[:-1] if is_pkg else parts)] = (path, is_pkg)
+    return out
+
+
+def _targets(module: str, is_pkg: bool, node: ast.Import | ast.ImportFrom) -> list[str]:
+    if isinstance(node, ast.Import):
+        return [a.name for a in node.names]
+    if node.level:
+        base = module.split('.') if is_pkg else module.split('.')[:-1]
+        base = base[:len(base) - (node.level - 1)]
+        target = '.'.join(base + ([node.module] if node.module else []))
+    else:
+        target = node.module or ''
+    return [target] + [f'{target}.{a.name}' for a in node.names]
+
+
+def _type_checking_only(tree: ast.AST) -> set[int]:
+    skip = set()
+    for n in ast.walk(tree):
+        if isinstance(n, ast.If) and 'TYPE_CHECKING' in ast.unparse(n.test):
+            skip.update(id(m) for m in ast.walk(n))
+    return skip
+
+
+def import_graph() -> dict[str, set[str]]:
+    """Every import of a package module by another, at module level or inside a function
+    (a deferred import is still a dependency), except those only for type checkers and a
+    module's imports of its own parent packages."""
+    mods = modules()
+    graph: dict[str, set[str]] = {m: set() for m in mods}
+    for mod, (path, is_pkg) in mods.items():
+        tree = ast.parse(path.read_text(encoding='utf-8'))
+        skip = _type_checking_only(tree)
+        for n in ast.walk(tree):
+            if isinstance(n, (ast.Import, ast.ImportFrom)) and id(n) not in skip:
+                for t in _targets(mod, is_pkg, n):
+                    if t in mods and t != mod and not mod.startswith(t + '.'):
+                        graph[mod].add(t)
+    return graph
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components of more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    found: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in graph[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                found.append(sorted(comp))
+
+    for v in graph:
+        if v not in index:
+            visit(v)
+    return found
+
+
+def test_the_cycle_finder_finds_a_cycle():
+    assert cycles({'a': {'b'}, 'b': {'c'}, 'c': {'a'}, 'd': {'a'}}) == [['a', 'b', 'c']]
+    assert cycles({'a': {'b'}, 'b': set()}) == []
+
+
+def test_no_import_cycle_between_the_package_s_modules():
+    graph = import_graph()
+    assert 'brace_control.demo_session' in graph['brace_control.demo_interaction']
+    assert not cycles(graph), cycles(graph)
+
+
+def test_no_except_import_error_around_the_package_s_own_modules():
+    """A guard around our own import turns a broken module into a check that silently does
+    nothing (a ``None`` mechanism: no wrench limit)."""
+    guarded = []
+    for mod, (path, is_pkg) in modules().items():
+        for n in ast.walk(ast.parse(path.read_text(encoding='utf-8'))):
+            if not isinstance(n, ast.Try):
+                continue
+            catches = {ast.unparse(h.type) for h in n.handlers if h.type is not None}
+            if not any('ImportError' in c or 'ModuleNotFoundError' in c for c in catches):
+                continue
+            for inner in n.body:
+                for m in ast.walk(inner):
+                    if isinstance(m, (ast.Import, ast.ImportFrom)) and any(
+                            t.startswith('brace_control') for t in _targets(mod, is_pkg, m)):
+                        guarded.append(f'{path.relative_to(ROOT)}:{m.lineno}')
+    assert not guarded, guarded
+
+
+def test_one_node_list_followed_by_setup_launch_and_readme():
+    setup = (ROOT / 'setup.py').read_text(encoding='utf-8')
+    scripts = dict(re.findall(r"'(\w+) = (brace_control\.nodes\.\w+):main'", setup))
+    assert set(scripts) == set(NODE_NAMES)
+    assert all(scripts[n] == f'brace_control.nodes.{n}' for n in NODE_NAMES)
+    assert all((PACKAGE / 'nodes' / f'{n}.py').is_file() for n in NODE_NAMES)
+    launch = (ROOT / 'launch' / 'brace.launch.py').read_text(encoding='utf-8')
+    assert 'from brace_control.nodes import' in launch and 'NODE_NAMES' in launch
+    readme = (ROOT / 'README.md').read_text(encoding='utf-8')
+    assert all(f'`{n}`' in readme for n in NODE_NAMES)
+    words = {3: 'three', 4: 'four', 5: 'five', 6: 'six'}
+    counted = re.findall(r'\b(three|four|five|six) nodes\b', readme)
+    assert counted and set(counted) == {words[len(NODE_NAMES)]}, counted
