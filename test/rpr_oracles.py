@@ -55,6 +55,13 @@ def lumbar_eq3(pose) -> np.ndarray:
     ])
 
 
+def eq3_jacobian(pose, h: float = 1e-7) -> np.ndarray:
+    """dq/dpose of eq. 3 by central differences (3x3): ``J^T f`` is the platform wrench."""
+    pose = np.asarray(pose, dtype=float)
+    cols = [(lumbar_eq3(pose + h * e) - lumbar_eq3(pose - h * e)) / (2 * h) for e in np.eye(3)]
+    return np.array(cols).T
+
+
 def cable_lengths_4rpr(cfg, pose) -> np.ndarray:
     """4-RPR cable lengths at a pose, from the YAML geometry written out:
     ``|p + R(psi) r (cos d_n, sin d_n) - A_n|`` (report §"FOUR RPR", eq. 1)."""

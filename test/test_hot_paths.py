@@ -13,7 +13,6 @@ import itertools
 import math
 import os
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -23,24 +22,18 @@ from brace_control.can.plan import pdo_mapping_writes
 from brace_control.mechanisms import load_mechanism
 from brace_control.mechanisms.planar_floats import PlanarRprFloats
 from brace_control.mechanisms.pose_estimate import MeasurementModel, PoseEstimator
-from brace_control.nodes.can_driver_node import CanDriverNode
 from brace_control.nodes.kinetics_node import platform_frame_wrench
 from brace_control.nodes.msgs import joint_state, pose_covariance_6x6, pose_with_covariance_msg
 from brace_control.nodes.timers import timer_callback
+from brace_control.safety import PlatformWrench
 from brace_control.sim import SimulatedBrace
 from drive_frames import FrameMaster
-from rpr_oracles import lumbar_eq3
+from rpr_oracles import eq3_jacobian, lumbar_eq3
 
 ROOT = Path(__file__).resolve().parent.parent
 CFG = ROOT / 'config' / 'lumbar_brace.yaml'
 CPM = 8192 / 0.001
 _ids = itertools.count()
-
-
-def eq3_jacobian(pose: np.ndarray, h: float = 1e-7) -> np.ndarray:
-    """dq/dpose of eq. 3 by central differences (3x3)."""
-    cols = [(lumbar_eq3(pose + h * e) - lumbar_eq3(pose - h * e)) / (2 * h) for e in np.eye(3)]
-    return np.array(cols).T
 
 
 def enabled_brace() -> tuple[SimulatedBrace, FrameMaster]:
@@ -246,25 +239,25 @@ class _CountingMechanism:
 
 
 def test_wrench_check_solves_forward_kinematics_again_only_for_new_inputs() -> None:
-    """The driver's wrench check (every joint-state sample): ``J^T f`` at ``forward_nearest(q,
-    last pose)``, the pose reused only while ``q`` and the hint repeat bit for bit."""
+    """The cycle's wrench check (brace_control.safety.PlatformWrench, every sample): ``J^T f``
+    at ``forward_nearest(q, last pose)``, the pose reused while ``q`` repeats bit for bit
+    (``pose_period=0``: a new ``q`` is solved at once)."""
     counting = _CountingMechanism()
     mech = counting.mech
-    node = SimpleNamespace(mechanism=counting, _pose_hint=np.asarray(mech.home_pose, dtype=float),
-                           _fk_key=None, _fk_pose=None, _fk_rows=None, _legs=PlanarRprFloats.of(mech))
+    platform = PlatformWrench(counting, pose_period=0.0, legs=PlanarRprFloats.of(mech))
     rng = np.random.default_rng(3)
     q = np.asarray(mech.inverse(np.asarray(mech.home_pose) + np.array([0.002, -0.001, 0.03])))
     pose = mech.forward_nearest(q, mech.home_pose)
     for k in range(6):
         f = rng.normal(0, 50.0, 3)
-        w = CanDriverNode._wrench(node, q, f)
+        w = platform(q, f, 0.002 * k)
         np.testing.assert_allclose(w, mech.wrench(pose, f), rtol=0, atol=1e-9)
         np.testing.assert_allclose(w, eq3_jacobian(pose).T @ f, atol=1e-4)
-    assert counting.forward_calls == 2           # the first hint (home), then the pose found
+    assert counting.forward_calls == 1           # from the home pose, then reused
     q2 = q + np.array([1e-6, 0.0, 0.0])
-    CanDriverNode._wrench(node, q2, f)
-    assert counting.forward_calls == 3
-    np.testing.assert_array_equal(node._pose_hint, mech.forward_nearest(q2, pose))
+    platform(q2, f, 0.02)
+    assert counting.forward_calls == 2
+    np.testing.assert_array_equal(platform.pose, mech.forward_nearest(q2, pose))
 
 
 def test_platform_frame_wrench_rotates_the_force_into_the_platform() -> None:

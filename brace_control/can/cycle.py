@@ -323,7 +323,8 @@ class CycleMixin:
         brake along the path and hold; reported as the motion's stop, nothing latches."""
         pending, self._soft_stop = self._soft_stop, None
         if isinstance(pending, str):
-            key, reason = 'soft_wrench', pending
+            key = 'soft_force' if pending.startswith('soft force') else 'soft_wrench'
+            reason = pending
         else:
             index, force = pending
             name = self.names[index]

@@ -63,8 +63,9 @@ from .execution import ActuatorTrajectory, ExecutionEvent, PathExecutor
 from .frame import Frame
 from .monitors import MonitorMixin
 from .receive import ReceiveMixin
-from .monitors import NO_FEEDFORWARD_LAG_S, RELIEVABLE
+from .monitors import NO_FEEDFORWARD_LAG_S, RELIEVABLE, platform_tiers
 from .plan import BootPlan, ModulePlan
+from ..safety import ForcePrediction
 from .state import (BusStatus, DriveStatus, Feedback, MasterConfig, MasterState, MasterStatus,
                     Relief, TakeUp, _Drive, _Module, _Setpoint)
 from .supervision import Fault, FaultKind, Supervisor
@@ -121,6 +122,12 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
         #: ``f(actuator index, force) -> str``: what the soft-limit stop adds to its reason
         #: (the node: the wrench capacity at the estimated pose); ``None``: nothing
         self.soft_limit_context: Callable[[int, float], str] | None = None
+        #: docs/safety.md §8, §14, evaluated in the SYNC cycle: the platform wrench's hard and
+        #: soft tiers (``None``: no mechanism model or no ``safety.max_wrench``) and the
+        #: prediction on each actuator's load cell (:mod:`brace_control.safety`)
+        self.platform_tiers = platform_tiers(config)
+        self.force_prediction = ForcePrediction(config.names, self.limits.force_limit,
+                                                'N' if self.limits.unit == 'm' else 'N·m')
         self.supervisor = Supervisor(on_fault=self._on_fault)
         self.stats = PeriodStats(config.period)
         self._own_bus = bus is None
@@ -177,6 +184,7 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
         #: bus timestamp (wall clock) of the newest frame received from a drive
         self._rx_wall = -math.inf
         self._last_wake = 0.0
+        self._loads_stamp: int | None = None     # the SYNC the load tiers last judged
         self._grace_until = 0.0               # monotonic: after a host stall of this process
         self._hb_period = config.master_heartbeat_ms * 1e-3
         self._next_hb = 0.0
@@ -497,8 +505,9 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
             return self.executor.distance_to_go(stream_horizon)
 
     def soft_stop(self, reason: str) -> bool:
-        """A soft limit found outside the drives' samples (the node's platform wrench, docs/safety.md
-        §14): the running trajectory or setpoint stream brakes along its path at the next SYNC
+        """A soft limit found beside the per-drive monitors (the platform wrench's or a load
+        cell's prediction, docs/safety.md §14; or a caller's): the running trajectory or
+        setpoint stream brakes along its path at the next SYNC
         and holds, reported stopped with ``reason``; nothing latches. ``False`` (nothing
         done) when no such motion runs, it already brakes, or a soft stop is pending."""
         if self.distance_to_go() is None or self._soft_stop is not None:

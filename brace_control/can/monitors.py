@@ -14,11 +14,13 @@ import logging
 import time
 from collections.abc import Callable
 
+from ..safety import Action, PlatformWrench, Verdict, WrenchTiers
+from ..safety.wrench import SOFT_STREAM_S
 from .cia402 import NmtState, State402, decode_state, describe_statusword, emcy_description
-from .state import MasterState, _Drive, _Module, _Node
+from .state import MasterConfig, MasterState, _Drive, _Module, _Node
 from .supervision import Fault, FaultKind, Sample, check_sample
 
-__all__ = ['MonitorMixin', 'BRAKEABLE', 'RELIEVABLE', 'NO_FEEDFORWARD_LAG_S']
+__all__ = ['MonitorMixin', 'BRAKEABLE', 'RELIEVABLE', 'NO_FEEDFORWARD_LAG_S', 'platform_tiers']
 
 log = logging.getLogger('brace_control.can.master')
 
@@ -43,6 +45,18 @@ BRAKEABLE = frozenset({FaultKind.FORCE_LIMIT, FaultKind.WRENCH_LIMIT, FaultKind.
 RELIEVABLE = frozenset({FaultKind.FORCE_LIMIT, FaultKind.WRENCH_LIMIT, FaultKind.LOAD_CELL_SATURATED,
                         FaultKind.FOLLOWING_ERROR, FaultKind.STEP_LIMIT, FaultKind.OVERSPEED,
                         FaultKind.EXTERNAL})
+
+
+def platform_tiers(config: MasterConfig) -> WrenchTiers | None:
+    """The platform wrench's tiers of a device (docs/safety.md §8, §14), ``None`` without a
+    mechanism model or a ``safety.max_wrench``. A planar RPR's statics run in plain floats
+    (:class:`~brace_control.mechanisms.planar_floats.PlanarRprFloats`, checked against the
+    model when built)."""
+    mech = config.mechanism
+    if mech is None or not config.max_wrench:
+        return None
+    from ..mechanisms.planar_floats import PlanarRprFloats
+    return WrenchTiers(PlatformWrench(mech, legs=PlanarRprFloats.of(mech)), config.max_wrench)
 
 
 class MonitorMixin:
@@ -183,6 +197,46 @@ class MonitorMixin:
                     f'{limits.speed_factor:g} x {limits.v_max * 1e3:.1f} mm/s', drive=name,
                     still_present=lambda d=d: abs(d.velocity) > self.limits.speed_factor * self.limits.v_max)
             d.checked = s
+        if self.state is MasterState.ENABLED:
+            self._monitor_loads(now, tracking)
+
+    def _monitor_loads(self, now: float, tracking: bool) -> None:
+        """docs/safety.md §8, §14 on each drive's newest sample, once per new SYNC answered:
+        the platform wrench's hard tier latches, its soft tier and the actuator forces'
+        prediction brake a motion heading past the limit. Plain floats (~15 us a cycle)."""
+        samples = [d.sample for d in self._drives]
+        if not samples or None in samples:
+            return
+        stamp = max(s.sync_index for s in samples)
+        if stamp == self._loads_stamp:
+            return
+        self._loads_stamp = stamp
+        q = [s.position for s in samples]
+        forces = [s.force for s in samples]
+
+        def togo() -> float | None:
+            return self.distance_to_go(SOFT_STREAM_S)
+
+        tiers = self.platform_tiers
+        verdicts: list[Verdict] = []
+        if tiers is not None:
+            verdict = tiers.check(now, q, forces, togo)
+            if verdict.action is Action.PROTECTIVE_STOP:
+                self.supervisor.report(FaultKind.WRENCH_LIMIT, verdict.reason,
+                                       still_present=self._wrench_present)
+                return
+            verdicts.append(verdict)
+        if tracking and self.executor.moving:
+            verdicts.append(self.force_prediction.check(now, q, forces, togo))
+        for verdict in verdicts:
+            if verdict.action is Action.SOFT_STOP and self.soft_stop(verdict.reason):
+                break
+
+    def _wrench_present(self) -> bool:
+        """A wrench stop's cause: the platform wrench of the newest sample above the limit."""
+        fb = self.feedback()
+        tiers = self.platform_tiers
+        return bool(fb.valid and tiers is not None and tiers.exceeds(fb.position, fb.force))
 
     def _monitor_module(self, m: '_Module', in_grace: bool) -> None:
         """The load-cell module: its heartbeat, its NMT state, and its TPDO keeping up with the

@@ -103,6 +103,11 @@ class MasterConfig:
     send_timeout: float = 0.0005     # never block the cycle on a full TX queue
     transition_timeout: float = 1.0  # s for a 402 transition of all drives
     thread_priority: int = 0         # SCHED_FIFO priority of the SYNC thread (0: normal)
+    #: the device's model (``None``: none in the file): the cycle's platform-wrench tiers
+    #: (:mod:`brace_control.safety`) solve its statics
+    mechanism: Any = None
+    #: ``safety.max_wrench`` per wrench axis (``()``: no platform-wrench tiers)
+    max_wrench: tuple[float, ...] = ()
     # a TPDO is attributed to the SYNC it answered from its bus timestamp (wall clock)
 
     @property
@@ -150,6 +155,9 @@ class MasterConfig:
             tpdo = pdo_specs(dc.get_path('can.tpdo', None), 'tpdo')
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
+        if mechanism is None and 'mechanism' in dc:
+            from ..mechanisms import mechanism_from_config     # deferred: mechanisms is heavy
+            mechanism = mechanism_from_config(dc)
         if home_lengths is None:
             home_lengths = _home_lengths(dc, mechanism)
         values: dict[str, Any] = dict(
@@ -181,6 +189,8 @@ class MasterConfig:
             sdo_timeout=float(dc.get_path('can.sdo_timeout')),
             sdo_retries=int(dc.get_path('can.sdo_retries')),
             stiffness=float(dc.get_path('actuator.stiffness')),
+            mechanism=mechanism,
+            max_wrench=tuple(float(x) for x in dc.get_path('safety.max_wrench')),
         )
         values.update(overrides)
         return cls(**values)

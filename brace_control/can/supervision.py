@@ -28,7 +28,7 @@ STEP_LIMIT             |Δtarget| > v·dt + margin, v ramped near     1 period  
                        the stroke ends
 OVERSPEED              measured speed > 1.5·v_max                   6 samples              speed back below
 FORCE_LIMIT            |load cell| > force_limit                    1 period               force back below
-WRENCH_LIMIT           platform wrench > max_wrench (node, 100 Hz)  1 joint_states period  wrench back below
+WRENCH_LIMIT           platform wrench > max_wrench (any axis)      1 period               wrench back below
 STALE_FEEDBACK         no TPDO1 while the other drives sent         3 periods (100 ms if   TPDO1 again
                        stale_periods each (all silent: 2 x master   all drives silent)
                        heartbeat = the drives' own consumer time)
@@ -73,7 +73,7 @@ class FaultKind(enum.Enum):
     STEP_LIMIT = 'step limit'                      # docs/safety.md §5, §7
     OVERSPEED = 'overspeed'                        # docs/safety.md §8
     FORCE_LIMIT = 'force limit'                    # docs/safety.md §8
-    WRENCH_LIMIT = 'wrench limit'                  # docs/safety.md §8 (reported by the node)
+    WRENCH_LIMIT = 'wrench limit'                  # docs/safety.md §8 (brace_control.safety)
     STALE_FEEDBACK = 'stale feedback'              # docs/safety.md §9
     POSITION_JUMP = 'impossible position jump'     # docs/safety.md §9
     LOAD_CELL_SATURATED = 'load cell saturated'    # docs/safety.md §9

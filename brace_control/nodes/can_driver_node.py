@@ -81,8 +81,9 @@ When active:
   at that pose); nothing latches. ``safety.force_limit`` latches a protective stop;
 * ``/diagnostics``: one status per drive (NMT, 402 state, last EMCY, heartbeat age),
   the bus (load, error state) and the SYNC cycle (period error p50/p99, overruns);
-* monitors the platform wrench from the load cells against ``safety.max_wrench``
-  (docs/safety.md §8) and latches a protective stop beyond it.
+* reports the platform-wrench tiers the master runs in its SYNC cycle
+  (:mod:`brace_control.safety`): beyond ``safety.max_wrench`` a protective stop
+  (docs/safety.md §8), a motion heading past it braked (§14).
 
 With ``can.sim: true`` the simulated brace (:mod:`brace_control.sim`) is started in this
 process on the same python-can channel before the master boots (a ``virtual`` bus only
@@ -124,7 +125,6 @@ import sys
 import threading
 import time
 import traceback
-from collections import deque
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -139,8 +139,7 @@ from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 
 from ..can import (ActuatorTrajectory, BraceMaster, DriverError, DriverInitializationError,
-                   FaultKind, MasterConfig,
-                   MasterState, State402, TrajectoryInvalid)
+                   MasterConfig, MasterState, State402, TrajectoryInvalid)
 from ..config import ConfigError
 from . import topics
 from .msgs import (MalformedMessage, joint_knots_from_msg, joint_state, joint_state_arrays,
@@ -157,14 +156,6 @@ REJECT_LOG_PERIOD = 1.0
 TAKE_UP_GAP_M = 0.0005
 #: N: the tension a take-up brings every cable to when the mechanism sets no tension_min
 TAKE_UP_TENSION_N = 1.0
-#: the soft wrench tier (CanDriverNode._watch_wrench) looks at wrenches above this share of
-#: safety.max_wrench; the rise is taken over SOFT_WRENCH_WINDOW_S (s) and counts above
-#: SOFT_WRENCH_RISE of the limit; a setpoint stream (its end unknown) is extrapolated
-#: SOFT_WRENCH_STREAM_S (s) at its speed
-SOFT_WRENCH_FLOOR = 0.5
-SOFT_WRENCH_WINDOW_S = 0.05
-SOFT_WRENCH_RISE = 0.01
-SOFT_WRENCH_STREAM_S = 0.25
 #: Hz: execution events and the driver state are published this often (when they change)
 EVENT_RATE_HZ = 50.0
 
@@ -214,14 +205,6 @@ class CanDriverNode(LifecycleNode):
         self.accepted = 0
         self.last_rejection = ''
         self._last_reject_log = -math.inf
-        self._pose_hint = None if self.mechanism is None else np.asarray(self.mechanism.home_pose, float)
-        self._fk_key: tuple[bytes, bytes] | None = None     # (q, hint) of the last forward kinematics
-        self._fk_pose: np.ndarray | None = None
-        self._fk_rows: list[tuple[float, float, float]] | None = None   # J's rows at that pose
-        #: a planar RPR's legs in plain floats (the wrench check's J^T f), None: the mechanism's
-        self._legs = None if self.mechanism is None else self._float_legs()
-        self._wrench_limit = np.asarray(self.cfg['safety']['max_wrench'], float)
-        self._wrench_trend: deque = deque(maxlen=16)     # (monotonic s, |wrench| per axis)
         self._last_faults: tuple = ()
         # services take up to seconds (402 transitions, braking, a relief): their work runs in
         # a thread and the callback awaits it (_trigger), so one thread of an executor serves
@@ -276,12 +259,6 @@ class CanDriverNode(LifecycleNode):
     def _mechanism(self) -> Any:
         from ..mechanisms import mechanism_from_config
         return self.cfg.model or mechanism_from_config(self.cfg)
-
-    def _float_legs(self) -> Any:
-        """:meth:`PlanarRprFloats.of <brace_control.mechanisms.planar_floats.PlanarRprFloats.of>`
-        the mechanism (``None`` unless a planar RPR that agrees with its model)."""
-        from ..mechanisms.planar_floats import PlanarRprFloats
-        return PlanarRprFloats.of(self.mechanism)
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -795,108 +772,6 @@ class CanDriverNode(LifecycleNode):
         self._last_js_wall = fb.wall
         self._js_pub.publish(joint_state(self.names, position=fb.position, velocity=fb.velocity,
                                          effort=fb.force, stamp=stamp))
-        if m.state is MasterState.ENABLED:
-            self._check_wrench(fb.position, fb.force)
-
-    def _wrench(self, q: np.ndarray, forces: np.ndarray) -> np.ndarray | None:
-        """The platform wrench of measured positions and efforts: the pose by
-        ``forward_nearest`` from the last one, then ``J^T f`` there (the mechanism's ``wrench``).
-
-        ``forward_nearest`` is a pure function of ``(q, hint)``; at rest both repeat bit for bit
-        (the hint is the pose found from the same ``q`` the sample before), so the pose of the
-        last call with the same inputs, and the rows of ``J`` there, serve again instead of
-        solving the forward kinematics anew. The wrench is computed for every sample (the
-        efforts change): for a planar RPR in plain floats (:class:`~brace_control.mechanisms.
-        planar_floats.PlanarRprFloats`, checked against the model at start-up; equal to the
-        model's to rounding), else by the mechanism.
-        """
-        if self.mechanism is None or self._pose_hint is None:
-            return None
-        q = np.asarray(q, dtype=float)
-        key = (q.tobytes(), self._pose_hint.tobytes())
-        if key == self._fk_key:
-            pose, rows = self._fk_pose, self._fk_rows
-        else:
-            try:
-                pose = np.asarray(self.mechanism.forward_nearest(q, self._pose_hint), float)
-            except ValueError:
-                return None
-            rows = None
-            if self._legs is not None and pose.shape == (3,) and np.isfinite(pose).all():
-                try:
-                    lengths, rows = self._legs.lengths_and_rows(*pose.tolist())
-                except ZeroDivisionError:               # a leg of zero length: the model raises
-                    rows = None
-                if rows is not None and min(lengths) <= 1e-12:
-                    rows = None
-            self._fk_key, self._fk_pose, self._fk_rows = key, pose, rows
-        self._pose_hint = pose
-        f = np.asarray(forces, dtype=float)
-        if rows is not None and f.shape == (len(rows),) and np.isfinite(f).all():
-            return np.array(self._legs.wrench(rows, f.tolist()))
-        return np.asarray(self.mechanism.wrench(pose, forces), float)
-
-    def _wrench_exceeds(self) -> bool:
-        m = self.master
-        if m is None:
-            return False
-        fb = m.feedback()
-        w = self._wrench(fb.position, fb.force) if fb.valid else None
-        return w is not None and bool(np.any(np.abs(w[:self._wrench_limit.size]) >
-                                             self._wrench_limit[:w.size]))
-
-    def _check_wrench(self, q: np.ndarray, forces: np.ndarray) -> None:
-        """docs/safety.md §8: platform wrench from the load cells beyond ``safety.max_wrench``."""
-        w = self._wrench(q, forces)
-        if w is None:
-            return
-        n = min(w.size, self._wrench_limit.size)
-        over = np.abs(w[:n]) > self._wrench_limit[:n]
-        if np.any(over):
-            self.master.protective_stop(
-                FaultKind.WRENCH_LIMIT,
-                f'platform wrench {np.round(w, 1).tolist()} exceeds safety.max_wrench '
-                f'{self._wrench_limit.tolist()} on axis {np.flatnonzero(over).tolist()}',
-                still_present=self._wrench_exceeds)
-        else:
-            self._watch_wrench(np.abs(w[:n]), self._wrench_limit[:n], np.asarray(q, float),
-                               time.monotonic())
-
-    def _watch_wrench(self, load: np.ndarray, limit: np.ndarray, q: np.ndarray, now: float) -> None:
-        """The soft tier of the wrench limit (docs/safety.md §14 for the platform wrench): a motion
-        whose wrench on the body rises so that, at its rise per actuator displacement over
-        the last :data:`SOFT_WRENCH_WINDOW_S`, it would pass ``safety.max_wrench`` by the end
-        of the motion is braked along its path at once and holds; its goal is aborted with
-        the axis, the wrench and the prediction; nothing latches. A goal whose load stays
-        below the limit is left alone: the prediction is the load at the motion's end, not a
-        fixed share of the limit. Looked at from half the limit up (the extrapolation at
-        most doubles the load), so a motion heading past the limit stops with room to brake;
-        a rise within the load cells' noise (:data:`SOFT_WRENCH_RISE`) is no rise."""
-        trend = self._wrench_trend
-        trend.append((now, load, q))
-        if not np.any(load > SOFT_WRENCH_FLOOR * limit):
-            return
-        old = next((s for s in reversed(trend) if now - s[0] >= SOFT_WRENCH_WINDOW_S), None)
-        if old is None:
-            return
-        moved = float(np.linalg.norm(q - old[2]))
-        rise = load - old[1]
-        togo = self.master.distance_to_go(SOFT_WRENCH_STREAM_S)
-        if togo is None or moved <= 0.0:
-            return
-        ahead = load + np.maximum(rise, 0.0) / moved * togo
-        hit = np.flatnonzero((load > SOFT_WRENCH_FLOOR * limit) & (rise > SOFT_WRENCH_RISE * limit)
-                            & (ahead > limit))
-        if not hit.size:
-            return
-        j = int(hit[0])
-        axis, unit = _wrench_axis(self.mechanism, j)
-        reason = (f'soft wrench limit: the platform {axis} at {load[j]:.1f} {unit}, rising '
-                  f'{rise[j]:.2f} {unit} in the last {moved * 1e3:.2f} mm (or mrad) of the motion, '
-                  f'would reach {ahead[j]:.1f} {unit} by its end, above safety.max_wrench = '
-                  f'{limit[j]:g} {unit}; decelerated along the path, holding')
-        if self.master.soft_stop(reason):
-            trend.clear()
 
     # ------------------------------------------------------------------ services
 
@@ -968,7 +843,7 @@ class CanDriverNode(LifecycleNode):
             return None
         q = np.asarray(self.master.feedback().position, float)
         try:
-            pose = np.asarray(m.forward_nearest(q, self._pose_hint), float)
+            pose = np.asarray(m.forward_nearest(q, self._pose_guess()), float)
             gap = float(np.max(np.abs(np.asarray(m.inverse(pose), float) - q)))
         except ValueError as exc:           # InconsistentLengths: its residual; else unknown
             gap = float(getattr(exc, 'residual', math.inf))
@@ -998,6 +873,13 @@ class CanDriverNode(LifecycleNode):
     def _relieve(self) -> str:
         return self.master.relieve()
 
+    def _pose_guess(self) -> Any:
+        """The newest pose the cycle's wrench tiers solved (a starting guess for forward
+        kinematics), else the home pose."""
+        tiers = None if self.master is None else self.master.platform_tiers
+        return (tiers.platform.pose.copy() if tiers is not None
+                else np.asarray(self.mechanism.home_pose, float))
+
     def _soft_limit_context(self, index: int, force: float) -> str:
         """What a soft-limit stop adds to its reason: the wrench capacity at the pose
         (docs/safety.md §14)."""
@@ -1006,7 +888,7 @@ class CanDriverNode(LifecycleNode):
             return ''
         fb = m.feedback()
         try:
-            pose = np.asarray(self.mechanism.forward_nearest(fb.position, self._pose_hint), float)
+            pose = np.asarray(self.mechanism.forward_nearest(fb.position, self._pose_guess()), float)
             cap, limiting = self.mechanism.wrench_capacity(
                 pose, float(self.cfg['actuator']['max_force']), return_limiting=True)
         except ValueError as exc:
@@ -1124,15 +1006,6 @@ class _Yield:
 def _yield() -> _Yield:
     """Give the executor back one turn (rclpy resumes pending coroutine tasks on its next wake)."""
     return _Yield()
-
-
-def _wrench_axis(mechanism: Any, j: int) -> tuple[str, str]:
-    """Name and unit of axis ``j`` of ``safety.max_wrench`` for the mechanism's pose kind."""
-    kind = getattr(mechanism, 'pose_kind', None) or {3: 'planar', 2: 'xy'}.get(
-        int(getattr(mechanism, 'dof', 0)), '')
-    axes = {'planar': (('Fx', 'N'), ('Fy', 'N'), ('Mz', 'N·m')), 'xy': (('Fx', 'N'), ('Fy', 'N')),
-            'spherical': (('Mx', 'N·m'), ('My', 'N·m'), ('Mz', 'N·m'))}.get(kind, ())
-    return axes[j] if j < len(axes) else (f'axis {j}', 'N or N·m')
 
 
 class _Refused(DriverError):
