@@ -59,6 +59,10 @@ def _node_pids(tag: str) -> list[int]:
     return out
 
 
+#: s from a bring-up's end to the end of its last node
+NODES_GONE_S = 3.5
+
+
 def _wait(predicate, timeout, what):
     end = time.monotonic() + timeout
     while not predicate():
@@ -127,8 +131,10 @@ def test_bringup_ended_mid_motion_ends_every_node_with_the_drives_stopped(ros, t
         os.kill(proc.pid, sig)
         proc.wait(timeout=30)
         t_end = time.monotonic()
-        _wait(lambda: not _node_pids(tag), 2.0, 'every node process gone')
-        assert time.monotonic() - t_end <= 2.0
+        # each node disables what it drives, then ends: 2.45 s and 2.8 s seen in full suite
+        # runs on a host giving this VM less CPU (bench/RESULTS.md, "Test suite time")
+        _wait(lambda: not _node_pids(tag), NODES_GONE_S, 'every node process gone')
+        assert time.monotonic() - t_end <= NODES_GONE_S
     finally:
         executor.shutdown()
         node.destroy_node()
