@@ -1,4 +1,4 @@
-"""The SYNC loop's trajectory schedule (:class:`brace_control.can.execution.PathExecutor`),
+"""The SYNC loop's trajectory schedule (:class:`brace_control.control.execution.PathExecutor`),
 without a bus: JTC replacement semantics with a queue, missed SYNCs, late starts.
 
 Oracle: closed-form quintics (Flash & Hogan minimum jerk, and the quintic from a moving
@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from brace_control.can.execution import ActuatorTrajectory, PathExecutor
+from brace_control.control.execution import ActuatorTrajectory, PathExecutor
 from brace_control.trajectory.base import quintic_coefficients
 
 T_SYNC = 0.002

@@ -830,7 +830,7 @@ def test_a_goal_at_the_edge_of_a_legs_reach_is_planned_within_what_the_driver_ac
     limit"). Oracle: the motion's true joint accelerations, second differences of the
     inverse kinematics on 40 001 instants; and the driver's acceptance of what ik_node
     makes of the plan."""
-    from brace_control.can.execution import PathExecutor
+    from brace_control.control.execution import PathExecutor
     from brace_control.mechanisms import mechanism_from_config
     from brace_control.trajectory.actuator import actuator_knots
     from brace_control.trajectory.knots import knots_of
@@ -892,7 +892,7 @@ def test_every_motion_the_planner_accepts_is_one_ik_node_converts_and_the_driver
     (stroke, speed, acceleration: PathExecutor.load). A goal the planner refuses is refused
     with a reason; one it accepts must never be refused downstream ("accepted", then
     "aborted: its motion was rejected", seen on the 3-RRR and the shoulder)."""
-    from brace_control.can.execution import PathExecutor
+    from brace_control.control.execution import PathExecutor
     from brace_control.mechanisms import mechanism_from_config
     from brace_control.nodes.msgs import pose_kind
     from brace_control.trajectory.actuator import actuator_knots
@@ -932,7 +932,7 @@ def test_a_long_path_goal_is_planned_within_what_the_driver_accepts():
     the 200 path samples. Checked by differences on those samples, a 1000-pose path was
     planned at 4.5 s and the driver refused it (joint 3 at 9.9 x its acceleration limit).
     Oracle: the driver's check of what ik_node makes of the plan."""
-    from brace_control.can.execution import PathExecutor
+    from brace_control.control.execution import PathExecutor
     from brace_control.mechanisms import mechanism_from_config
     from brace_control.trajectory.actuator import actuator_knots
     from brace_control.trajectory.knots import knots_of

@@ -21,7 +21,7 @@
 from .cia402 import Controlword, NmtState, OpMode, State402, Statusword, decode_state, emcy_description
 from .errors import (DriverError, DriverInitializationError, DriverOperationError,
                      DriverTimeoutError, FaultLatchedError)
-from .execution import ActuatorTrajectory, ExecutionEvent, PathExecutor, TrajectoryInvalid
+from ..control.execution import ActuatorTrajectory, ExecutionEvent, PathExecutor, TrajectoryInvalid
 from .master import BraceMaster
 from .state import BusStatus, DriveStatus, Feedback, MasterConfig, MasterState, MasterStatus
 from .supervision import Fault, FaultKind, Limits, Supervisor

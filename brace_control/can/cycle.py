@@ -34,7 +34,7 @@ import numpy as np
 
 from .cia402 import Controlword, State402, controlword_towards, decode_state
 from .frame import Frame
-from .execution import ExecutionState
+from ..control.execution import ExecutionState
 from .monitors import BRAKEABLE
 from .pdo import frame_bits
 from .state import Relief, TakeUp, _Drive, _Setpoint

@@ -59,7 +59,7 @@ from .cia402 import NmtState, OpMode, State402, describe_statusword, emcy_descri
 from .cycle import CycleMixin
 from .errors import (DriverInitializationError, DriverOperationError, DriverTimeoutError,
                      FaultLatchedError)
-from .execution import ActuatorTrajectory, ExecutionEvent, PathExecutor
+from ..control.execution import ActuatorTrajectory, ExecutionEvent, PathExecutor
 from .frame import Frame
 from .monitors import MonitorMixin
 from .receive import ReceiveMixin

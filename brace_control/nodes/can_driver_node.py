@@ -44,7 +44,7 @@ When active:
 
 * subscribes ``/brace/actuator_trajectory`` (``trajectory_msgs/JointTrajectory``, by
   actuator name): a planned motion, executed in the SYNC thread (ros2_control's
-  JointTrajectoryController semantics, :mod:`brace_control.can.execution`): sampled at every
+  JointTrajectoryController semantics, :mod:`brace_control.control.execution`): sampled at every
   SYNC from one time base for all axes (quintic Hermite), 607Ah target + 60B1h velocity
   feed-forward; it replaces the running motion from its ``header.stamp`` (0 or a stamp in
   the past: now) with continuous position, velocity and acceleration. A received
