@@ -33,7 +33,6 @@ import math
 import os
 import shutil
 import signal
-import subprocess
 import sys
 import threading
 import time
@@ -43,7 +42,8 @@ from typing import Any
 
 import numpy as np
 
-from .demo_session import RECORDED_TOPICS, find_service, pkg_path, prepare_config, wait_recording
+from .demo_session import (RECORDED_TOPICS, end_session, find_service, home_and_enable, launch_recorder,
+                           prepare_config, wait_recording)
 from .nodes import topics
 from .nodes.spin import BackgroundSpinner
 
@@ -122,7 +122,7 @@ def run_demo(device: str, out: Path, *, rate: float = 1.0, settle: float = 3.0,
     from rclpy.signals import SignalHandlerOptions
 
     from .bag import BagError, replay
-    from .bringup import (BringUp, ProcessBringUp, call_trigger, disable_drives, wait_for_links,
+    from .bringup import (BringUp, ProcessBringUp, wait_for_links,
                           wait_until_ready)
     from .exercise import build_exercise_bag
 
@@ -164,19 +164,11 @@ def run_demo(device: str, out: Path, *, rate: float = 1.0, settle: float = 3.0,
                 raise RuntimeError(f'the CAN driver offers no {what!r} Trigger service')
             services[what] = name
         mode = 'as processes' if processes else 'in this process'
-        print(f'bring-up: 4 nodes + simulated brace {mode} in {time.monotonic() - t0:.1f} s')
-        # the recorder runs in its own process: ~900 messages/s of raw writes stay off this
-        # interpreter (in one-process mode its GIL also runs the SYNC thread and the simulator)
-        recorder = subprocess.Popen(
-            [sys.executable, '-m', 'brace_control.bag', 'record', str(out / 'run.mcap'),
-             '--topics', *RECORDED_TOPICS], stderr=subprocess.PIPE, text=True,
-            start_new_session=True, env={**os.environ, 'PYTHONPATH': pkg_path()})
+        print(f'bring-up: {len(bringup.names)} nodes + simulated brace {mode} in '
+              f'{time.monotonic() - t0:.1f} s')
+        recorder = launch_recorder(out / 'run.mcap', RECORDED_TOPICS)
         wait_recording(node, list(RECORDED_TOPICS), recorder)
-        for what in ('home', 'enable'):
-            ok, msg = call_trigger(node, services[what], timeout=20.0, executor=executor)
-            print(f'{what}: {"ok" if ok else "FAILED"} {msg}')
-            if not ok:
-                raise RuntimeError(f'{services[what]} failed: {msg}')
+        home_and_enable(node, services, executor)
         wait_for_links(node, timeout=30.0)     # the node processes have found each other
         wait_until_ready(node, timeout=30.0)   # ... each in its own discovery
         stats = replay(node, bag, rate=rate, wait_subscribers=1, wait_topics=[topics.POSE_GOAL],
@@ -197,27 +189,7 @@ def run_demo(device: str, out: Path, *, rate: float = 1.0, settle: float = 3.0,
     except (RuntimeError, BagError) as exc:
         failure = str(exc)
     finally:
-        if bringup is not None:
-            if processes:
-                ok, msg = disable_drives(node, executor=executor)     # drives first
-                print(f'disable: {"ok" if ok else "FAILED"} {msg}')
-                codes = bringup.stop()
-                if any(c != 0 for c in codes.values()):
-                    failure = failure or f'node exit codes {codes}'
-            else:
-                bringup.shutdown()                                    # drives disabled first
-        if recorder is not None:
-            recorder.send_signal(signal.SIGINT)
-            try:
-                _, err = recorder.communicate(timeout=30)
-                if recorder.returncode != 0:
-                    failure = failure or f'recorder failed: {err[-500:]}'
-            except subprocess.TimeoutExpired:
-                recorder.kill()
-                failure = failure or 'recorder did not stop'
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
+        failure = end_session(node, executor, bringup, recorder, processes=processes, failure=failure)
     if failure:
         print(f'demo failed: {failure}', file=sys.stderr)
         if not (out / 'run.mcap').exists():

@@ -33,7 +33,6 @@ import math
 import os
 import shutil
 import signal
-import subprocess
 import sys
 import threading
 import time
@@ -400,10 +399,11 @@ def run_interaction_demo(device: str, out: Path, *, processes: bool = True,
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
 
-    from .bringup import (BringUp, ProcessBringUp, call_trigger, disable_drives, wait_for_links,
+    from .bringup import (BringUp, ProcessBringUp, wait_for_links,
                           wait_until_ready)
     from .config import load_device_config
-    from .demo_session import RECORDED_TOPICS, find_service, pkg_path, prepare_config, wait_recording
+    from .demo_session import (RECORDED_TOPICS, end_session, find_service, home_and_enable,
+                               launch_recorder, prepare_config, wait_recording)
     from .mechanisms import mechanism_from_config
 
     out.mkdir(parents=True, exist_ok=True)
@@ -452,16 +452,9 @@ def run_interaction_demo(device: str, out: Path, *, processes: bool = True,
         graph = dict(node.get_topic_names_and_types())
         record = {t: ty for t, ty in {**RECORDED_TOPICS, **INTERACTION_TOPICS}.items()
                   if t not in OPTIONAL_TOPICS or t in graph}
-        recorder = subprocess.Popen(
-            [sys.executable, '-m', 'brace_control.bag', 'record', str(out / 'run.mcap'),
-             '--topics', *record], stderr=subprocess.PIPE, text=True,
-            start_new_session=True, env={**os.environ, 'PYTHONPATH': pkg_path()})
+        recorder = launch_recorder(out / 'run.mcap', record)
         wait_recording(node, list(record), recorder)
-        for what in ('home', 'enable'):
-            ok, msg = call_trigger(node, services[what], timeout=20.0, executor=executor)
-            print(f'{what}: {"ok" if ok else "FAILED"} {msg}')
-            if not ok:
-                raise RuntimeError(f'{services[what]} failed: {msg}')
+        home_and_enable(node, services, executor)
         wait_for_links(node, timeout=30.0)
         wait_until_ready(node, timeout=30.0)
         run_session(node, patient, script, services, executor=executor, stop=stop, phases=phases,
@@ -469,27 +462,7 @@ def run_interaction_demo(device: str, out: Path, *, processes: bool = True,
     except RuntimeError as exc:
         failure = str(exc)
     finally:
-        if bringup is not None:
-            if processes:
-                ok, msg = disable_drives(node, executor=executor)
-                print(f'disable: {"ok" if ok else "FAILED"} {msg}')
-                codes = bringup.stop()
-                if any(c != 0 for c in codes.values()):
-                    failure = failure or f'node exit codes {codes}'
-            else:
-                bringup.shutdown()
-        if recorder is not None:
-            recorder.send_signal(signal.SIGINT)
-            try:
-                _, err = recorder.communicate(timeout=30)
-                if recorder.returncode != 0:
-                    failure = failure or f'recorder failed: {err[-500:]}'
-            except subprocess.TimeoutExpired:
-                recorder.kill()
-                failure = failure or 'recorder did not stop'
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
+        failure = end_session(node, executor, bringup, recorder, processes=processes, failure=failure)
     (out / 'phases.json').write_text(json.dumps(
         {'script': {'rest': script.rest.tolist(), 'centre': script.centre.tolist(),
                     'amplitude': script.amplitude.tolist(), 'phase': script.phase.tolist(),

@@ -7,15 +7,19 @@ from __future__ import annotations
 
 import math
 import os
+import signal
+import subprocess
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import yaml
 
 from .nodes import topics
 
-__all__ = ['RECORDED_TOPICS', 'prepare_config', 'find_service', 'pkg_path', 'wait_recording']
+__all__ = ['RECORDED_TOPICS', 'prepare_config', 'find_service', 'pkg_path', 'wait_recording', 'end_session',
+           'launch_recorder', 'home_and_enable']
 
 
 #: Every brace topic a run publishes, with its type: what ``OUT/run.mcap`` holds. Not the
@@ -107,3 +111,58 @@ def wait_recording(node, topics: list[str], proc, timeout: float = 20.0) -> None
     missing = [t for t in topics if not any(i.node_name == 'brace_bag'
                                             for i in node.get_subscriptions_info_by_topic(t))]
     raise RuntimeError(f'recorder did not subscribe {missing} within {timeout} s')
+
+
+def end_session(node: Any, executor: Any, bringup: Any, recorder: Any, *, processes: bool,
+                failure: str | None) -> str | None:
+    """End a demo's session, drives first: the stack (processes: the driver's disable, then
+    the nodes, whose exit codes must be 0), the recorder (SIGINT, its bag closed), the
+    demo's own node. Returns the first failure (the one given, else one found here)."""
+    import rclpy
+
+    from .bringup import disable_drives
+    if bringup is not None:
+        if processes:
+            ok, msg = disable_drives(node, executor=executor)
+            print(f'disable: {"ok" if ok else "FAILED"} {msg}')
+            codes = bringup.stop()
+            if any(c != 0 for c in codes.values()):
+                failure = failure or f'node exit codes {codes}'
+        else:
+            bringup.shutdown()                  # the in-process driver disables first
+    if recorder is not None:
+        recorder.send_signal(signal.SIGINT)
+        try:
+            _, err = recorder.communicate(timeout=30)
+            if recorder.returncode != 0:
+                failure = failure or f'recorder failed: {err[-500:]}'
+        except subprocess.TimeoutExpired:
+            recorder.kill()
+            failure = failure or 'recorder did not stop'
+    executor.shutdown()
+    node.destroy_node()
+    rclpy.try_shutdown()
+    return failure
+
+
+def launch_recorder(path: Path, topics: Any) -> subprocess.Popen:
+    """``brace-bag record`` of ``topics`` into ``path`` in its own process (~900 messages/s
+    of raw writes stay off this interpreter, which in one-process mode also runs the SYNC
+    thread and the simulator). Wait for it with :func:`wait_recording`."""
+    import sys
+    return subprocess.Popen(
+        [sys.executable, '-m', 'brace_control.bag', 'record', str(path), '--topics', *topics],
+        stderr=subprocess.PIPE, text=True, start_new_session=True,
+        env={**os.environ, 'PYTHONPATH': pkg_path()})
+
+
+def home_and_enable(node: Any, services: dict[str, str], executor: Any) -> None:
+    """The CAN driver's ``home`` then ``enable`` (``services``: their names in the graph).
+
+    :raises RuntimeError: either refused (its answer)."""
+    from .bringup import call_trigger
+    for what in ('home', 'enable'):
+        ok, msg = call_trigger(node, services[what], timeout=20.0, executor=executor)
+        print(f'{what}: {"ok" if ok else "FAILED"} {msg}')
+        if not ok:
+            raise RuntimeError(f'{services[what]} failed: {msg}')
