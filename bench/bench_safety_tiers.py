@@ -51,7 +51,7 @@ def wrench_step(trials: int) -> list[int]:
             k0 = master._sync_index
             for node_id in (1, 2, 3):
                 sim.faults.set_load_cell(node_id, 120.0)
-            rigs._wait_for(lambda: master.supervisor.has(FaultKind.WRENCH_LIMIT), 2.0, 'the wrench stop')
+            rigs.wait_for(lambda: master.supervisor.has(FaultKind.WRENCH_LIMIT), 2.0, 'the wrench stop')
             out.append(seen[0] - k0)
         finally:
             master.shutdown()

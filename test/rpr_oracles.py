@@ -1,5 +1,5 @@
-"""Independent 3-RPR oracles shared by the tests: the lumbar paper's eq. 3, and a
-forward-kinematics root count (test_rpr3.py, test_rrr3.py).
+"""Independent oracles shared by the tests: the lumbar paper's eq. 3, a forward-kinematics
+root count (test_rpr3.py, test_rrr3.py), and the minimum-jerk motion (Flash-Hogan).
 
 Written out from the loop equations, not from the code under test: ``g(theta)`` is legs
 2 and 3 minus leg 1 solved for ``B1 - A1`` by Cramer's rule, leg 1 times ``det^2``; its
@@ -60,6 +60,19 @@ def eq3_jacobian(pose, h: float = 1e-7) -> np.ndarray:
     pose = np.asarray(pose, dtype=float)
     cols = [(lumbar_eq3(pose + h * e) - lumbar_eq3(pose - h * e)) / (2 * h) for e in np.eye(3)]
     return np.array(cols).T
+
+
+def min_jerk(q0, q1, duration: float, n: int):
+    """Flash-Hogan minimum jerk from ``q0`` to ``q1`` over ``duration`` (thesis 002 eq. 2.2),
+    at ``n`` evenly spaced times: ``(t, Q, V, A)``, rows per time, columns per coordinate."""
+    q0, q1 = np.atleast_1d(np.asarray(q0, dtype=float)), np.atleast_1d(np.asarray(q1, dtype=float))
+    t = np.linspace(0.0, duration, n)
+    s = t / duration
+    d = q1 - q0
+    p = 10 * s ** 3 - 15 * s ** 4 + 6 * s ** 5
+    v = (30 * s ** 2 - 60 * s ** 3 + 30 * s ** 4) / duration
+    a = (60 * s - 180 * s ** 2 + 120 * s ** 3) / duration ** 2
+    return t, q0 + np.outer(p, d), np.outer(v, d), np.outer(a, d)
 
 
 def cable_lengths_4rpr(cfg, pose) -> np.ndarray:

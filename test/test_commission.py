@@ -21,6 +21,7 @@ import pytest
 import yaml
 
 from brace_control.commission import main as commission
+from rpr_oracles import min_jerk
 
 REPO = Path(__file__).resolve().parent.parent
 _ids = itertools.count()
@@ -169,13 +170,8 @@ def test_every_mistake_at_once_is_found_and_the_corrected_file_runs_goals_on_the
         home = np.asarray(mech.home_pose, float)
         goal = home + np.array([0.0, 0.012, 0.03])
         q0, q1 = mech.inverse(home), mech.inverse(goal)
-        t = np.linspace(0.0, 1.2, 49)
-        s = t / 1.2
-        p = 10 * s ** 3 - 15 * s ** 4 + 6 * s ** 5
-        v = (30 * s ** 2 - 60 * s ** 3 + 30 * s ** 4) / 1.2
-        a = (60 * s - 180 * s ** 2 + 120 * s ** 3) / 1.44
-        assert master.execute(ActuatorTrajectory(t, q0 + np.outer(p, q1 - q0), np.outer(v, q1 - q0),
-                                                 np.outer(a, q1 - q0)), start=time.perf_counter() + 0.05, tag=1) is None
+        assert master.execute(ActuatorTrajectory(*min_jerk(q0, q1, 1.2, 49)),
+                              start=time.perf_counter() + 0.05, tag=1) is None
         end = time.monotonic() + 5
         tol = np.asarray(cfg['safety']['pose_tolerance'], float)
         while time.monotonic() < end and not np.all(np.abs(sim.truth().pose - goal) <= tol):
@@ -226,13 +222,7 @@ def test_a_brace_with_the_wrong_yaml_stops_within_1_mm_of_unexpected_motion(tmp_
         home = np.asarray(mech.home_pose, float)
         goal = home + np.array([0.0, 0.015, 0.03])
         q0, q1 = mech.inverse(home), mech.inverse(goal)
-        t = np.linspace(0.0, 1.5, 61)
-        s = t / 1.5
-        p = 10 * s ** 3 - 15 * s ** 4 + 6 * s ** 5
-        v = (30 * s ** 2 - 60 * s ** 3 + 30 * s ** 4) / 1.5
-        a = (60 * s - 180 * s ** 2 + 120 * s ** 3) / 2.25
-        master.execute(ActuatorTrajectory(t, q0 + np.outer(p, q1 - q0), np.outer(v, q1 - q0),
-                                          np.outer(a, q1 - q0)), start=time.perf_counter() + 0.05, tag=1)
+        master.execute(ActuatorTrajectory(*min_jerk(q0, q1, 1.5, 61)), start=time.perf_counter() + 0.05, tag=1)
         worst = 0.0
         events: list = []
         end = time.monotonic() + 4.0

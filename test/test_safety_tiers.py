@@ -8,25 +8,22 @@ computed ramps for the prediction, and the simulator's true forces.
 """
 from __future__ import annotations
 
-import itertools
 import math
-import os
 import time
 
 import numpy as np
 import pytest
 
-from brace_control.can import ActuatorTrajectory, BraceMaster, FaultKind, MasterState
+from brace_control.can import ActuatorTrajectory, FaultKind, MasterState
 from brace_control.config import load_device_config, resolve_device_file
 from brace_control.mechanisms import mechanism_from_config
 from brace_control.mechanisms.planar_floats import PlanarRprFloats
 from brace_control.safety import Action, ForcePrediction, LoadPrediction, PlatformWrench, WrenchTiers
-from brace_control.sim import SimulatedBrace
-from rpr_oracles import eq3_jacobian
+from rpr_oracles import eq3_jacobian, min_jerk
+from test_can_master import _rig_with, wait_for
 
 DEVICES = ('lumbar_brace', 'neck_brace_4rpr', 'neck_brace_3rrr', 'neck_brace_2r', 'shoulder',
            'upper_limb_trainer', 'continuum')
-_ids = itertools.count()
 
 
 def _mech(device):
@@ -155,32 +152,9 @@ def test_force_prediction_names_the_actuator():
 
 # ---------------------------------------------------------------- in the SYNC cycle
 
-def _rig(device, **safety):
-    cfg = load_device_config(resolve_device_file(device))
-    if safety:
-        import copy
-        cfg = copy.deepcopy(cfg)
-        cfg['safety'].update(safety)
-    channel = f'tiers-{os.getpid()}-{next(_ids)}'
-    sim = SimulatedBrace(cfg, channel=channel)
-    master = BraceMaster.from_device_config(cfg, channel=channel)
-    try:
-        master.boot()
-        master.home()
-        master.enable()
-    except BaseException:
-        master.shutdown()
-        sim.shutdown()
-        raise
-    return sim, master
-
-
-def _wait_for(cond, timeout, what):
-    t0 = time.perf_counter()
-    while not cond():
-        if time.perf_counter() - t0 > timeout:
-            pytest.fail(f'{what} not reached within {timeout} s')
-        time.sleep(0.0005)
+def _rig(device):
+    """A master and the simulated ``device``, booted, homed, enabled (test_can_master's rig)."""
+    return _rig_with({}, load_device_config(resolve_device_file(device)))
 
 
 # docs/safety.md §8
@@ -201,14 +175,14 @@ def test_a_wrench_step_latches_within_two_sync_periods():
         k0 = master._sync_index
         for node_id in (1, 2, 3):
             sim.faults.set_load_cell(node_id, 120.0)
-        _wait_for(lambda: master.supervisor.has(FaultKind.WRENCH_LIMIT), 2.0, 'the wrench stop')
+        wait_for(lambda: master.supervisor.has(FaultKind.WRENCH_LIMIT), 2.0, 'the wrench stop')
         kind, k = latched_at[0]
         assert kind is FaultKind.WRENCH_LIMIT and k - k0 <= 2, (k - k0, latched_at)
         assert 'safety.max_wrench' in master.supervisor.summary()
         assert any(f.kind is FaultKind.WRENCH_LIMIT for f in master.recover())     # still there
         for node_id in (1, 2, 3):
             sim.faults.set_load_cell(node_id, None)
-        _wait_for(lambda: not master.recover(), 2.0, 'recover once the load is gone')
+        wait_for(lambda: not master.recover(), 2.0, 'recover once the load is gone')
     finally:
         master.shutdown()
         sim.shutdown()
@@ -216,15 +190,8 @@ def test_a_wrench_step_latches_within_two_sync_periods():
 
 def _crank_goal(master, sim, q1, T):
     """A minimum-jerk crank motion to ``q1`` (rad) over ``T``; the true crank torque's peak."""
-    q0 = float(master.feedback().position[0])
-    t = np.linspace(0.0, T, 121)
-    s = t / T
-    d = q1 - q0
-    Q = q0 + d * (10 * s**3 - 15 * s**4 + 6 * s**5)
-    V = d * (30 * s**2 - 60 * s**3 + 30 * s**4) / T
-    A = d * (60 * s - 180 * s**2 + 120 * s**3) / T**2
     before = len(master.execution_events())
-    assert master.execute(ActuatorTrajectory(t, Q[:, None], V[:, None], A[:, None]),
+    assert master.execute(ActuatorTrajectory(*min_jerk(master.feedback().position[0], q1, T, 121)),
                           start=time.perf_counter() + 0.02, tag=7) is None
     peak = 0.0
     t0 = time.perf_counter()

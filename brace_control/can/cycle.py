@@ -334,7 +334,7 @@ class CycleMixin:
                     context = self.soft_limit_context(index, force)
                 except Exception as exc:  # noqa: BLE001 - the stop matters, not its description
                     context = f' (capacity unknown: {exc!r})'
-            unit = 'N' if self.limits.unit == 'm' else 'N·m'
+            unit = self.limits.force_unit
             key = 'soft_force'
             reason = (f'soft force limit: {name} at {force:.1f} {unit}, above safety.soft_force_limit = '
                       f'{self.limits.soft_force_limit:.3g} {unit}{context}; decelerated along the path, holding')

@@ -127,7 +127,7 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
         #: prediction on each actuator's load cell (:mod:`brace_control.safety`)
         self.platform_tiers = platform_tiers(config)
         self.force_prediction = ForcePrediction(config.names, self.limits.force_limit,
-                                                'N' if self.limits.unit == 'm' else 'N·m')
+                                                self.limits.force_unit)
         self.supervisor = Supervisor(on_fault=self._on_fault)
         self.stats = PeriodStats(config.period)
         self._own_bus = bus is None

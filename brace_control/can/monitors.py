@@ -203,7 +203,8 @@ class MonitorMixin:
     def _monitor_loads(self, now: float, tracking: bool) -> None:
         """docs/safety.md §8, §14 on each drive's newest sample, once per new SYNC answered:
         the platform wrench's hard tier latches, its soft tier and the actuator forces'
-        prediction brake a motion heading past the limit. Plain floats (~15 us a cycle)."""
+        prediction brake a motion heading past the limit. Plain floats (22 us median a cycle
+        at rest, bench/RESULTS.md "Load tiers in the cycle")."""
         samples = [d.sample for d in self._drives]
         if not samples or None in samples:
             return

@@ -129,6 +129,9 @@ class MasterConfig:
         """
         dc = as_device_config(cfg)      # checked against brace_control.schema, defaults filled
         scaling = scaling_from_config(dc)
+        if mechanism is None and 'mechanism' in dc:
+            from ..mechanisms import mechanism_from_config     # deferred: mechanisms is heavy
+            mechanism = mechanism_from_config(dc)
         limits = Limits.from_config(dc, scaling, mechanism=mechanism)
         node_ids = tuple(int(i) for i in dc.get_path('can.node_ids'))
         names = tuple(str(n) for n in dc.get_path('mechanism.actuator_names',
@@ -155,11 +158,8 @@ class MasterConfig:
             tpdo = pdo_specs(dc.get_path('can.tpdo', None), 'tpdo')
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
-        if mechanism is None and 'mechanism' in dc:
-            from ..mechanisms import mechanism_from_config     # deferred: mechanisms is heavy
-            mechanism = mechanism_from_config(dc)
-        if home_lengths is None:
-            home_lengths = _home_lengths(dc, mechanism)
+        if home_lengths is None and mechanism is not None:
+            home_lengths = mechanism.inverse(mechanism.home_pose)
         values: dict[str, Any] = dict(
             interface=str(dc.get_path('can.interface')),
             channel=channel or str(dc.get_path('can.channel')),
@@ -225,17 +225,6 @@ def load_cell_source(cfg: DeviceConfig) -> tuple[ObjectRef | None, LoadCellModul
         raise ConfigError(str(exc)) from None
     return None, LoadCellModule(node_id, cfg.resolve_file(eds_name, 'can.load_cell_node.eds'), objects,
                                 int(cfg.get_path('can.load_cell_node.tpdo', 1)))
-
-
-def _home_lengths(cfg: DeviceConfig, mech: Any = None) -> tuple[float, ...] | None:
-    """IK(home_pose) of the device's mechanism (``mech``, else built from ``cfg``), or
-    ``None`` if the device file has no mechanism section."""
-    if mech is None:
-        if 'mechanism' not in cfg:
-            return None
-        from ..mechanisms import mechanism_from_config     # deferred: mechanisms is heavy
-        mech = mechanism_from_config(cfg)
-    return tuple(float(x) for x in mech.inverse(mech.home_pose))
 
 
 @dataclass(frozen=True)

@@ -228,6 +228,11 @@ class Limits:
     unit: str = 'm'                # 'm' (linear) or 'rad' (rotary), for messages
     saturation_fraction: float = 0.95   # of the load cell's full scale (safety.saturation_fraction)
 
+    @property
+    def force_unit(self) -> str:
+        """The unit of the load cells' readings: N on linear actuators, N·m on rotary joints."""
+        return 'N' if self.unit == 'm' else 'N·m'
+
     def stroke_of(self, index: int | None) -> tuple[float, float]:
         """The range of actuator ``index`` (the common :attr:`stroke` if not per actuator)."""
         if index is None or self.strokes is None:

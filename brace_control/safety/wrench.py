@@ -206,13 +206,10 @@ class WrenchTiers:
         self.platform = platform
         self.limit = [float(x) for x in max_wrench]
         self.prediction = prediction or LoadPrediction()
-        #: the last wrench evaluated (None: none yet, or no pose fitted)
-        self.last: list[float] | None = None
 
     def check(self, now: float, q: Sequence[float], forces: Sequence[float],
               distance_to_go: Callable[[], float | None]) -> Verdict:
         w = self.platform(q, forces, now)
-        self.last = w
         if w is None:
             return OK
         limit = self.limit[:len(w)]
