@@ -70,7 +70,10 @@ def process_cpu() -> float:
 
 
 def ros_args(config: str, params: list[str], channel: str) -> list[str]:
-    args = ['--ros-args', '--params-file', config, '-p', f'can.channel:={channel}']
+    # the per-thread view needs the master and the simulator in this process (with the
+    # default can.cycle_process they run in a child: bench_stack.py splits that one)
+    args = ['--ros-args', '--params-file', config, '-p', f'can.channel:={channel}',
+            '-p', 'can.cycle_process:=false']
     for p in params:
         args += ['-p', p]
     return args

@@ -3,9 +3,12 @@
     ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST python bench/bench_stack.py [--seconds 10]
         [--device lumbar_brace] [--goals 20]
 
-The device comes up as ``brace-bringup --processes`` does it (each node its own process,
-the simulated brace inside the CAN driver's process, SYNC at the YAML's rate), homed and
-enabled. Then:
+The device comes up as ``brace-bringup --processes`` does it (each node its own process;
+the master's control cycle and the simulated brace in the CAN driver's child process,
+``can.cycle_process``; ``--in-driver-process``: both inside the driver's process), homed
+and enabled. ``-p name:=value`` overrides a parameter (e.g. ``can.cycle_priority:=0``).
+The driver's cycle process is measured on its own, and split by its threads' names into
+the master's share and the simulated brace's (on hardware, the drives' firmware). Then:
 
 * **at rest**: each node process's CPU (user + system, from /proc) over ``--seconds``, in %
   of one core, and their sum;
@@ -30,6 +33,7 @@ import tempfile
 import threading
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -54,15 +58,71 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
-def cpu_share(procs: dict, seconds: float, during=None) -> dict[str, float]:
+def children(pid: int) -> list[int]:
+    """The processes ``pid`` started (Linux: /proc/<pid>/task/*/children)."""
+    out: list[int] = []
+    for task in Path(f'/proc/{pid}/task').iterdir():
+        try:
+            out += [int(c) for c in (task / 'children').read_text().split()]
+        except OSError:
+            pass
+    return out
+
+
+def thread_cpu(pid: int) -> dict[str, float]:
+    """CPU seconds per OS thread name of a process (the cycle process names its threads:
+    master-sync, master-rx, sim-rx, sim-timer, cycle-push, cycle-commands)."""
+    out: dict[str, float] = {}
+    for task in Path(f'/proc/{pid}/task').iterdir():
+        try:
+            name = (task / 'comm').read_text().strip()
+            fields = (task / 'stat').read_text().rsplit(')', 1)[1].split()
+        except OSError:
+            continue
+        out[name] = out.get(name, 0.0) + (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+    return out
+
+
+#: the cycle process's threads by part: the master's (CAN I/O, SYNC, the link to the node)
+#: and the simulated brace's (on hardware, the drives' firmware)
+PARTS = {'master': ('master-', 'cycle-'), 'simulated brace': ('sim-',)}
+
+
+def part_of(thread: str) -> str:
+    return next((p for p, prefixes in PARTS.items() if thread.startswith(prefixes)), 'other threads')
+
+
+def cpu_share(procs: dict, seconds: float, during=None, split: int | None = None
+              ) -> tuple[dict[str, float], dict[str, float]]:
+    """% of one core per process over ``seconds`` (while ``during(seconds)`` runs), and for
+    the process ``split`` the same per part of its threads (:data:`PARTS`)."""
     before = {n: cpu_seconds(p.pid) for n, p in procs.items()}
+    threads0 = thread_cpu(split) if split else {}
     t0 = time.monotonic()
     if during is None:
         time.sleep(seconds)
     else:
         during(seconds)
     dt = time.monotonic() - t0
-    return {n: 100.0 * (cpu_seconds(p.pid) - before[n]) / dt for n, p in procs.items()}
+    shares = {n: 100.0 * (cpu_seconds(p.pid) - before[n]) / dt for n, p in procs.items()}
+    parts: dict[str, float] = {}
+    for name, sec in (thread_cpu(split) if split else {}).items():
+        part = part_of(name)
+        parts[part] = parts.get(part, 0.0) + 100.0 * (sec - threads0.get(name, 0.0)) / dt
+    return shares, parts
+
+
+def home_and_enable(node, executor, timeout: float = 60.0) -> None:
+    """``~/home`` then ``~/enable`` of can_driver_node, each asked again until it answers
+    success (the driver may still be configuring) or ``timeout`` s pass."""
+    for what in ('home', 'enable'):
+        deadline = time.monotonic() + timeout
+        ok, msg = False, ''
+        while not ok and time.monotonic() < deadline:
+            ok, msg = call_trigger(node, f'/can_driver_node/{what}', timeout=10, executor=executor)
+            if not ok:
+                time.sleep(0.3)
+        assert ok, f'{what}: {msg}'
 
 
 def main(argv=None) -> int:
@@ -70,11 +130,18 @@ def main(argv=None) -> int:
     ap.add_argument('--seconds', type=float, default=10.0)
     ap.add_argument('--device', default='lumbar_brace')
     ap.add_argument('--goals', type=int, default=20, help='goals for the start latency')
+    ap.add_argument('--in-driver-process', action='store_true',
+                    help='can.cycle_process false: the master and the simulator in the driver node')
+    ap.add_argument('-p', dest='params', action='append', default=[], metavar='NAME:=VALUE')
     args = ap.parse_args(argv)
 
     tmp = Path(tempfile.mkdtemp(prefix='bench_stack_'))
     config, _ = prepare_config(args.device, tmp)
-    group = ProcessBringUp(config, extra_args=['-p', 'can.channel:=bench_stack']).start()
+    extra = ['-p', 'can.channel:=bench_stack',
+             '-p', f'can.cycle_process:={"false" if args.in_driver_process else "true"}']
+    for param in args.params:
+        extra += ['-p', param]
+    group = ProcessBringUp(config, extra_args=extra).start()
     rclpy.init()
     node = rclpy.create_node('bench_stack')
     ex = SingleThreadedExecutor()
@@ -109,16 +176,23 @@ def main(argv=None) -> int:
     node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, on_diag, 50)
     pub = node.create_publisher(PoseStamped, topics.POSE_GOAL, topics.GOAL_QOS)
     try:
-        for what in ('home', 'enable'):
-            deadline = time.monotonic() + 30
-            ok, msg = False, ''
-            while not ok and time.monotonic() < deadline:
-                ok, msg = call_trigger(node, f'/can_driver_node/{what}', timeout=15, executor=ex)
-                time.sleep(0.2)
-            assert ok, f'{what}: {msg}'
+        home_and_enable(node, ex)
         wait_for_links(node, timeout=30)
         time.sleep(2.0)
-        rest = cpu_share(group.procs, args.seconds)
+        procs = dict(group.procs)
+        driver = procs.get('can_driver_node')
+        cycle_pids = children(driver.pid) if driver is not None else []
+        split = None
+        if cycle_pids:          # can.cycle_process: the master and the simulator in a child
+            split = cycle_pids[0]
+            procs['cycle process (master + simulated brace)'] = SimpleNamespace(pid=split)
+        else:                   # in the driver's process
+            split = driver.pid if driver is not None else None
+        with lock:
+            c_rest0 = cycle[-1] if cycle else (0, 0)
+        rest, rest_parts = cpu_share(procs, args.seconds, split=split)
+        with lock:
+            c_rest1 = cycle[-1] if cycle else (0, 0)
 
         from brace_control.config import load_device_config
         from brace_control.mechanisms import mechanism_from_config
@@ -155,7 +229,7 @@ def main(argv=None) -> int:
 
         with lock:
             c0 = cycle[-1] if cycle else (0, 0)
-        moving = cpu_share(group.procs, args.seconds, during=motion)
+        moving, moving_parts = cpu_share(procs, args.seconds, during=motion, split=split)
         time.sleep(1.2)
         with lock:
             c1 = cycle[-1]
@@ -185,7 +259,9 @@ def main(argv=None) -> int:
     cycles, overruns = c1[0] - c0[0], c1[1] - c0[1]
     print(f'## Stack as processes ({args.device}), bench/bench_stack.py\n')
     print('```\nROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST python bench/bench_stack.py '
-          f'--seconds {args.seconds:g} --device {args.device} --goals {args.goals}\n```\n')
+          f'--seconds {args.seconds:g} --device {args.device} --goals {args.goals}'
+          f'{" --in-driver-process" if args.in_driver_process else ""}'
+          + ''.join(f' -p {p}' for p in args.params) + '\n```\n')
     print(f'Python {platform.python_version()}, {os.cpu_count()} CPUs, load average {load:.2f} '
           f'after the run; node exit codes {codes}; goals {states.count("succeeded")} succeeded of '
           f'{len(states)}.\n')
@@ -194,8 +270,16 @@ def main(argv=None) -> int:
     for n in rest:
         print(f'| {n} | {rest[n]:.1f} | {moving[n]:.1f} |')
     print(f'| **all** | **{sum(rest.values()):.1f}** | **{sum(moving.values()):.1f}** |\n')
-    print(f'SYNC cycles in motion: {cycles}, overruns {overruns} '
-          f'({100.0 * overruns / max(cycles, 1):.2f} %).\n')
+    where = 'cycle process' if cycle_pids else 'can_driver_node'
+    print(f'{where} by thread (OS thread names; threads without one: other):\n')
+    print('| part | CPU at rest | CPU in motion |')
+    print('|---|---:|---:|')
+    for part in sorted(set(rest_parts) | set(moving_parts)):
+        print(f'| {part} | {rest_parts.get(part, 0.0):.1f} | {moving_parts.get(part, 0.0):.1f} |')
+    print()
+    rc, ro = c_rest1[0] - c_rest0[0], c_rest1[1] - c_rest0[1]
+    print(f'SYNC cycles at rest: {rc}, overruns {ro} ({100.0 * ro / max(rc, 1):.2f} %); '
+          f'in motion: {cycles}, overruns {overruns} ({100.0 * overruns / max(cycles, 1):.2f} %).\n')
     if lat.size:
         print(f'Goal start latency (publish -> first SYNC of its trajectory), {lat.size} goals: '
               f'p50 {1e3 * np.percentile(lat, 50):.0f} ms, p99 {1e3 * np.percentile(lat, 99):.0f} ms, '

@@ -215,10 +215,21 @@ SCHEMA: dict[str, Param] = {
     'can.homing_method': _ro(35, 'CiA 402 homing method 6098h', (-128, 127)),
     'can.frame_log': _ro('', 'python-can log of the bus (.asc/.blf/.log), empty = none'),
     'can.sim': _ro(True, 'start the simulated brace on the bus'),
+    'can.cycle_process': _ro(True, 'run the control cycle (CAN I/O, SYNC, execution, the safety tiers, '
+                             'the simulated brace) in a process of its own, where rclpy never runs '
+                             "(false: in the driver node's process)"),
+    'can.cycle_priority': _ro(50, "SCHED_FIFO priority of the control cycle's process, all its threads "
+                              '(can.cycle_process; needs CAP_SYS_NICE or an rtprio allowance, else '
+                              'can.cycle_nice applies and the log says so); 0: normal scheduling',
+                              (0, 99)),
+    'can.cycle_nice': _ro(-10, "niceness of the control cycle's process when it runs without "
+                          'can.cycle_priority: below 0 the kernel runs it before the nodes when the '
+                          'cores are busy (needs CAP_SYS_NICE or an RLIMIT_NICE allowance, else it '
+                          'keeps 0 and says so); 0: unchanged', (-20, 19)),
     'can.sync_spin_us': _ro(0, 'SYNC thread: busy-wait before each deadline (0: sleep only)', (0, 5000), 'us'),
     'can.sync_thread_priority': _ro(0, 'SCHED_FIFO priority of the SYNC thread, 0 = normal scheduling '
                                     '(needs CAP_SYS_NICE)', (0, 99)),
-    'can.gil_switch_interval_us': _ro(200, "driver process: Python's GIL switch interval, 0 = keep "
+    'can.gil_switch_interval_us': _ro(200, "the cycle's process: Python's GIL switch interval, 0 = keep "
                                       "Python's 5000 us", (0, 100000), 'us'),
     # safety (docs/safety.md): read-only at run time
     'safety.command_timeout': _ro(0.015, 'no setpoint received for this long -> hold', (0.001, 5.0), 's'),

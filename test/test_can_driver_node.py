@@ -99,7 +99,7 @@ def test_services_joint_states_and_setpoints(ros, driver):
     assert 'lacks' in driver.last_rejection or 'not finite' in driver.last_rejection
     ros.spin_for(0.05)
     assert np.array(states[-1].position) == pytest.approx(held, abs=3e-7)      # nothing moved
-    assert not driver.master.supervisor.latched
+    assert not driver.master.latched
 
     ros.spin_until(lambda: any(s.name.endswith('/drive/a2') for d in diags for s in d.status),
                    3.0, 'per-drive diagnostics')

@@ -170,8 +170,9 @@ class Truth:
 
 @pytest.fixture(scope='module')
 def stack(tmp_path_factory):
+    # the test records the executor's command at every SYNC: the cycle runs in this process
     extra = ['-p', f'can.channel:=inter{next(_channels)}', '-p', 'can.sync_spin_us:=0',
-             '-p', 'sim.truth_rate_hz:=100.0']
+             '-p', 'sim.truth_rate_hz:=100.0', '-p', 'can.cycle_process:=false']
     with stack_in_process(LUMBAR, tmp_path_factory.mktemp('device'), extra) as b:
         truth = Truth(b.helper)
         home_and_enable(b)

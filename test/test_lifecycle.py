@@ -184,7 +184,10 @@ def rig(ros):
         channel = _channel()
         wire = Wire(channel)
         made.append(wire)
-        driver = ros.device_node(CanDriverNode, **{'can.channel': channel, **overrides})
+        # the wire listens on the virtual bus, which exists inside one process: the
+        # driver's cycle runs in this one (test_cycle_process covers the cycle's own process)
+        driver = ros.device_node(CanDriverNode, **{'can.channel': channel, 'can.cycle_process': False,
+                                                   **overrides})
         made.append(driver)
         probe = ros.node(f'probe{next(_ids)}')
         return driver, Lifecycle(ros, probe), wire, probe
@@ -333,7 +336,7 @@ def test_deactivate_is_refused_while_a_protective_stop_holds_the_load(ros, rig):
     assert lc.trigger('home').success and lc.trigger('enable').success
     for node_id in NODE_IDS:                  # 3 x 120 N: a platform force above max_wrench
         driver.sim.faults.set_load_cell(node_id, 120.0)
-    ros.spin_until(lambda: driver.master.supervisor.latched, 3.0, 'protective stop')
+    ros.spin_until(lambda: driver.master.latched, 3.0, 'protective stop')
     wire.drain()
     ros.spin_until(lambda: statuswords(wire.frames(0.05)).get(2, 0) & 0x6F == 0x07, 3.0,
                    'QUICK STOP ACTIVE')       # CiA 402-2 table 30
@@ -389,7 +392,8 @@ def test_the_driver_builds_one_mechanism_model(ros, monkeypatch):
         return original(cfg)
     monkeypatch.setattr(mechanisms, 'mechanism_from_config', counting)
     monkeypatch.setattr(sim_brace, 'mechanism_from_config', counting)
-    driver = ros.device_node(CanDriverNode, **{'can.channel': _channel()})
+    # counted in this process: the cycle (and the simulator) run in it
+    driver = ros.device_node(CanDriverNode, **{'can.channel': _channel(), 'can.cycle_process': False})
     try:
         driver.autostart()
         assert len(built) == 2, [m.get('stroke_min') for m in built]

@@ -59,7 +59,7 @@ from .cia402 import NmtState, OpMode, State402, describe_statusword, emcy_descri
 from .cycle import CycleMixin
 from .errors import (DriverInitializationError, DriverOperationError, DriverTimeoutError,
                      FaultLatchedError)
-from ..control.execution import ActuatorTrajectory, ExecutionEvent, PathExecutor
+from ..control.execution import ActuatorTrajectory, ExecutionEvent, ExecutionState, PathExecutor
 from .frame import Frame
 from .monitors import MonitorMixin
 from .receive import ReceiveMixin
@@ -306,6 +306,45 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
     def moving(self) -> bool:
         """The command is in motion (or a trajectory is scheduled)."""
         return self.executor.moving
+
+    # -- what a node reads (the same names on :class:`~.process.MasterProcess`)
+
+    @property
+    def faults(self) -> tuple[Fault, ...]:
+        """The latched protective stops (docs/safety.md), oldest first."""
+        return self.supervisor.faults
+
+    @property
+    def latched(self) -> bool:
+        """A protective stop is latched (until :meth:`recover`)."""
+        return self.supervisor.latched
+
+    def fault_summary(self) -> str:
+        """The latched protective stops in one line."""
+        return self.supervisor.summary()
+
+    @property
+    def execution(self) -> ExecutionState:
+        """What the command follows: hold, a trajectory, the stream, the admittance."""
+        return self.executor.state
+
+    @property
+    def command(self) -> tuple[float, ...] | None:
+        """The executor's command (unit per actuator), ``None`` before it is anchored."""
+        ex = self.executor
+        return tuple(float(v) for v in ex.q) if ex.anchored else None
+
+    @property
+    def interacting(self) -> bool:
+        """The in-cycle admittance (interaction mode) drives the command."""
+        return self.executor.source is not None
+
+    @property
+    def last_pose(self) -> np.ndarray | None:
+        """The newest platform pose the cycle's wrench tiers solved (``None``: no model,
+        no ``safety.max_wrench``, or not solved yet)."""
+        tiers = self.platform_tiers
+        return None if tiers is None else tiers.platform.pose.copy()
 
     def _checked_positions(self, positions: Sequence[float], what: str) -> np.ndarray:
         arr = np.asarray(positions, dtype=float)

@@ -69,6 +69,8 @@ class FastPlanarKinematics:
         self._cache: dict[tuple[float, float, float], tuple[list[float], list[tuple[float, float, float]]]] = {}
 
     def __getattr__(self, name: str) -> Any:
+        if name.startswith('__') or name == '_m':   # e.g. while unpickling: no model yet
+            raise AttributeError(name)
         return getattr(self._m, name)
 
     def _rows(self, pose: Sequence[float]) -> tuple[list[float], list[tuple[float, float, float]]]:

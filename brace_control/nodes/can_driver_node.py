@@ -85,9 +85,16 @@ When active:
   (:mod:`brace_control.safety`): beyond ``safety.max_wrench`` a protective stop
   (docs/safety.md §8), a motion heading past it braked (§14).
 
-With ``can.sim: true`` the simulated brace (:mod:`brace_control.sim`) is started in this
-process on the same python-can channel before the master boots (a ``virtual`` bus only
-exists inside one process), and its ground truth is published at ``sim.truth_rate_hz``
+The control cycle runs in a process of its own (``can.cycle_process``, default on;
+:mod:`brace_control.can.process`): the master, its SYNC thread and the bus, where rclpy never
+runs, so no callback, recorder or DDS call of this node holds the interpreter lock past a
+SYNC deadline. The node reads the master's state from the samples that process sends at
+``can.joint_state_rate_hz`` and after every command; commands are calls into it. The
+process ends with the node, however the node ends (it disables the drives first).
+
+With ``can.sim: true`` the simulated brace (:mod:`brace_control.sim`) is started in the
+cycle's process on the same python-can channel before the master boots (a ``virtual`` bus
+only exists inside one process), and its ground truth is published at ``sim.truth_rate_hz``
 (what a user compares an estimator or a controller against; nothing of the stack
 subscribes to it):
 
@@ -140,6 +147,7 @@ from trajectory_msgs.msg import JointTrajectory
 
 from ..can import (ActuatorTrajectory, BraceMaster, DriverError, DriverInitializationError,
                    MasterConfig, MasterState, State402, TrajectoryInvalid)
+from ..can.process import MasterProcess, label_threads, wrench_capacity_context
 from ..config import ConfigError
 from . import topics
 from .msgs import (MalformedMessage, joint_knots_from_msg, joint_state, joint_state_arrays,
@@ -185,7 +193,7 @@ class CanDriverNode(LifecycleNode):
 
     def __init__(self, *, node_name: str = 'can_driver_node', **kwargs: Any) -> None:
         self.sim: Any = None
-        self.master: BraceMaster | None = None
+        self.master: BraceMaster | MasterProcess | None = None
         self._lifecycle = 'unconfigured'
         self._active = False
         #: why the last transition failed ('' if it did not): :meth:`autostart` raises it
@@ -225,6 +233,7 @@ class CanDriverNode(LifecycleNode):
                                                 topics.LATCHED_QOS)
         self._last_state_key: tuple | None = None
         self._last_js_wall = 0.0                # the SYNC (wall clock) of the last joint state
+        self._last_js_stamp = -1.0              # the SYNC (perf_counter) of the last joint state
         # ROS time (ns) minus perf_counter (s) at start-up: trajectory stamps -> the master's
         # clock, SYNC instants -> message stamps (one offset: no jitter from two clock reads)
         self._ros_minus_perf_ns = self.get_clock().now().nanoseconds - round(time.perf_counter() * 1e9)
@@ -317,7 +326,8 @@ class CanDriverNode(LifecycleNode):
                 return self._failed('activate', 'a lifecycle publisher did not activate', ret)
             self._active = True
             self._set_lifecycle('active')
-            self._js_timer.reset()
+            if not isinstance(self.master, MasterProcess):   # else each sample publishes
+                self._js_timer.reset()
             if self._truth_timer is not None:
                 self._truth_timer.reset()
             self.get_logger().info(f'active: drives {self.master.state.value}; call ~/home then ~/enable')
@@ -334,10 +344,10 @@ class CanDriverNode(LifecycleNode):
                 return self._failed('deactivate', 'the bus is not open', TransitionCallbackReturn.FAILURE)
             holding = [d.name for d in m.status().drives
                        if d.state in (State402.QUICK_STOP_ACTIVE, State402.OPERATION_ENABLED)]
-            if m.supervisor.latched and holding:
+            if m.latched and holding:
                 return self._failed(
                     'deactivate',
-                    f'a protective stop is latched ({m.supervisor.summary()}) and drive(s) '
+                    f'a protective stop is latched ({m.fault_summary()}) and drive(s) '
                     f'{holding} hold the load in quick stop; call ~/relieve and ~/recover while '
                     'active, then deactivate (or shutdown to power the drives off as they are)',
                     TransitionCallbackReturn.FAILURE)
@@ -404,6 +414,17 @@ class CanDriverNode(LifecycleNode):
 
         :raises DriverError: the bus could not be opened or a drive did not boot.
         """
+        mc = self.master_config
+        if self.cfg['can']['cycle_process']:
+            # the cycle, the drives' bus and the simulated brace in a process where rclpy
+            # never runs (brace_control.can.process); its GIL switch interval is its own
+            self.master = MasterProcess(self.cfg, mc, on_snapshot=self._on_sample)
+            self.sim = self.master.sim
+            if self.sim is not None:
+                self.get_logger().info(f'simulated brace on {mc.interface}:{mc.channel} '
+                                       f'(control cycle process {self.master.pid})')
+            self.master.boot()
+            return
         switch_us = int(self.cfg['can']['gil_switch_interval_us'])
         if switch_us > 0 and self._previous_switch_interval is None:
             # process-wide: a thread busy in Python (executor, simulator) then holds the GIL
@@ -411,7 +432,6 @@ class CanDriverNode(LifecycleNode):
             # restored when the bus closes (in-process bring-ups, tests)
             self._previous_switch_interval = sys.getswitchinterval()
             sys.setswitchinterval(switch_us * 1e-6)
-        mc = self.master_config
         if self.cfg['can']['sim']:
             if self.sim is None:
                 from ..sim import SimulatedBrace
@@ -421,9 +441,11 @@ class CanDriverNode(LifecycleNode):
             self.sim.start()
             self.get_logger().info(f'simulated brace on {mc.interface}:{mc.channel}')
         master = BraceMaster(mc)
-        master.soft_limit_context = self._soft_limit_context
+        master.soft_limit_context = wrench_capacity_context(
+            master, self.mechanism, float(self.cfg['actuator']['max_force']))
         self.master = master
         master.boot()
+        label_threads(master)
 
     def _close(self) -> None:
         """Stop taking commands, disable the drives, close the bus, power the simulated brace
@@ -448,6 +470,8 @@ class CanDriverNode(LifecycleNode):
                 self.sim.shutdown()
             except Exception as exc:  # noqa: BLE001
                 self.get_logger().error(f'stopping the simulated brace: {exc!r}')
+            if isinstance(m, MasterProcess):
+                self.sim = None             # it lived and ended with the cycle's process
         if self._previous_switch_interval is not None:
             sys.setswitchinterval(self._previous_switch_interval)
             self._previous_switch_interval = None
@@ -666,7 +690,7 @@ class CanDriverNode(LifecycleNode):
             if times.size == 0:
                 # during interaction the planner's empty trajectory ends the mode for a
                 # position goal (trajectory_node plans it once the 'aborted' event says where)
-                why = ('a position goal arrived (empty trajectory)' if m.executor.source is not None
+                why = ('a position goal arrived (empty trajectory)' if m.interacting
                        else 'cancel requested (empty trajectory)')
                 m.stop_motion(why, tag=tag if tag else None)
                 self.publish_events()
@@ -703,9 +727,9 @@ class CanDriverNode(LifecycleNode):
                 time=self._ros_minus_perf_ns + round(e.time * 1e9), lag=e.lag))
         self.publish_state()
 
-    def _note_faults(self, m: BraceMaster) -> None:
+    def _note_faults(self, m: BraceMaster | MasterProcess) -> None:
         """A new fault: logged, and in ``/diagnostics`` at once."""
-        faults = m.supervisor.faults
+        faults = m.faults
         if faults != self._last_faults:
             for f in faults:
                 if f not in self._last_faults:
@@ -731,8 +755,8 @@ class CanDriverNode(LifecycleNode):
                 lifecycle=lifecycle, enabled='false', homed='false', faults='none', execution='hold',
                 command=[], stamp=self.get_clock().now().nanoseconds))
             return
-        faults = m.supervisor.faults
-        execution = m.executor.state.value
+        faults = m.faults
+        execution = m.execution.value
         taking_up = m.taking_up
         key = (lifecycle, m.state, tuple(f.describe() for f in faults), m.homed, execution, taking_up)
         if key == self._last_state_key and not force:
@@ -743,21 +767,27 @@ class CanDriverNode(LifecycleNode):
                 'enabled, taking up the cables\' slack' if taking_up else state.value)
         level = (DiagnosticStatus.ERROR if faults else
                  DiagnosticStatus.OK if state is MasterState.ENABLED else DiagnosticStatus.WARN)
-        message = f'{text}: {m.supervisor.summary()}' if faults else text
+        message = f'{text}: {m.fault_summary()}' if faults else text
         if lifecycle != 'active':
             message = f'{lifecycle}: {message}'
         self._state_pub.publish(status_msg(
             f'{self.get_name()}/state', message, level=level, state=state.value, lifecycle=lifecycle,
             enabled=str(state is MasterState.ENABLED and lifecycle == 'active' and not taking_up).lower(),
             homed=str(m.homed).lower(),
-            faults=m.supervisor.summary() if faults else 'none', execution=execution,
-            command=list(m.executor.q) if m.executor.anchored else [],
+            faults=m.fault_summary() if faults else 'none', execution=execution,
+            command=list(m.command or ()),
             stamp=self.get_clock().now().nanoseconds))
 
     # ------------------------------------------------------------------ joint states, wrench
 
+    def _on_sample(self) -> None:
+        """A sample of the control cycle's process arrived (``can.cycle_process``; its link's
+        reader thread): published at once, one message per sample."""
+        if self._active and self.context.ok():
+            self._publish_joint_states()
+
     def _publish_joint_states(self) -> None:
-        """``/brace/joint_states`` (active only) and the platform wrench check."""
+        """``/brace/joint_states`` (active only), once per SYNC sample."""
         m = self.master
         if m is None or not self._active:
             return
@@ -765,6 +795,9 @@ class CanDriverNode(LifecycleNode):
         fb = m.feedback()
         if not fb.valid or not (m.homed or not self.master_config.homing_method):
             return       # an incremental encoder reads 0 until homed: no measurement yet
+        if fb.stamp == self._last_js_stamp:
+            return       # this SYNC's samples went out already
+        self._last_js_stamp = fb.stamp
         # stamped with the SYNC the samples answer (its wall-clock send time: ROS time), not
         # when this timer ran
         stamp = ns_to_stamp(round(fb.wall * 1e9) if fb.wall else
@@ -851,8 +884,8 @@ class CanDriverNode(LifecycleNode):
 
     def _disable(self) -> str:
         self.master.disable()
-        if self.master.supervisor.latched:
-            return f'disabled on recover; protective stop latched: {self.master.supervisor.summary()}'
+        if self.master.latched:
+            return f'disabled on recover; protective stop latched: {self.master.fault_summary()}'
         return 'SWITCH ON DISABLED'
 
     def _halt(self) -> str:
@@ -861,7 +894,7 @@ class CanDriverNode(LifecycleNode):
 
     def _recover(self) -> str:
         m = self.master
-        if not m.supervisor.latched and not any(
+        if not m.latched and not any(
                 d.state in (State402.FAULT, State402.FAULT_REACTION_ACTIVE) for d in m.status().drives):
             return f'nothing to recover: no protective stop is latched (drives {m.state.value}); nothing was changed'
         blocking = m.recover()
@@ -876,26 +909,8 @@ class CanDriverNode(LifecycleNode):
     def _pose_guess(self) -> Any:
         """The newest pose the cycle's wrench tiers solved (a starting guess for forward
         kinematics), else the home pose."""
-        tiers = None if self.master is None else self.master.platform_tiers
-        return (tiers.platform.pose.copy() if tiers is not None
-                else np.asarray(self.mechanism.home_pose, float))
-
-    def _soft_limit_context(self, index: int, force: float) -> str:
-        """What a soft-limit stop adds to its reason: the wrench capacity at the pose
-        (docs/safety.md §14)."""
-        m = self.master
-        if m is None or self.mechanism is None or not hasattr(self.mechanism, 'wrench_capacity'):
-            return ''
-        fb = m.feedback()
-        try:
-            pose = np.asarray(self.mechanism.forward_nearest(fb.position, self._pose_guess()), float)
-            cap, limiting = self.mechanism.wrench_capacity(
-                pose, float(self.cfg['actuator']['max_force']), return_limiting=True)
-        except ValueError as exc:
-            return f' (capacity unknown: {exc})'
-        axes = getattr(self.mechanism, 'wrench_axes', tuple(f'#{i}' for i in range(len(cap))))
-        parts = ', '.join(f'{a} {c:.3g}' for a, c in zip(axes, cap))
-        return f'; wrench capacity at pose {np.round(pose, 4).tolist()}: {parts}'
+        pose = None if self.master is None else self.master.last_pose
+        return pose if pose is not None else np.asarray(self.mechanism.home_pose, float)
 
     def _home(self) -> str:
         self.master.home()
@@ -923,7 +938,13 @@ class CanDriverNode(LifecycleNode):
             msg.header.stamp = self.get_clock().now().to_msg()
             msg.status = out
             return msg
-        st = m.status()
+        try:
+            st = m.status()
+        except DriverError as exc:              # the cycle's process is gone (or going)
+            status('safety', 'error', f'{self._lifecycle}: {exc}', lifecycle=self._lifecycle)
+            msg.header.stamp = self.get_clock().now().to_msg()
+            msg.status = out
+            return msg
 
         faults_by_drive: dict[str | None, list[str]] = {}
         for f in st.faults:

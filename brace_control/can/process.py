@@ -1,0 +1,833 @@
+"""The control cycle in a process of its own (issue 27; ``can.cycle_process``, default on).
+
+The SYNC deadline must not depend on what rclpy, a recorder or a plot does in the driver's
+process: one Python interpreter lock serves every thread of a process, and rclpy's executor
+holds it for whole callbacks (and through some native DDS calls). So the driver node runs the
+:class:`~.master.BraceMaster` (CAN I/O, SYNC, trajectory execution, the safety tiers, the
+in-cycle admittance) and, with ``can.sim``, the simulated brace on its virtual bus, in a child
+process where rclpy never runs. That is ros2_control's split of a real-time loop and ROS,
+done the way that works under Python's lock.
+
+Parent (the node) and child talk over one socket pair (:mod:`multiprocessing.connection`):
+
+* **commands in:** ``(id, target, name, args, kwargs)``: a method of the master (``target``
+  ``'master'``) or of the simulated brace (``'sim'``), or an attribute read (``name``
+  starting ``'get:'``). The 402 transitions, homing, reliefs and shutdown (up to seconds)
+  each run in a thread of their own; everything else (a trajectory, a setpoint, a stop)
+  inline, so a stream never queues behind a service.
+* **samples and events out:** a :class:`Snapshot` after every command (in its reply) and at
+  ``can.joint_state_rate_hz`` (what the node publishes, what its checks read), each built and
+  sent under one lock, so they arrive in the order they were taken and every execution event
+  is delivered exactly once. The child's log records go out too.
+
+:class:`MasterProcess` is the parent's side. It answers the node's reads (state, faults,
+feedback, the execution's state, the newest pose, the simulator's truth) from the newest
+snapshot, with no round trip; commands are calls that return the child's answer (or raise
+its exception).
+
+Supervision (docs/safety.md §20, "never unsupervised"): the child ignores SIGINT and SIGHUP
+(a terminal's signals are the parent's to handle: it disables the drives through the child);
+when the parent's end of the socket closes, whatever ended the parent (a crash, SIGKILL), the
+child disables the drives, closes the bus and exits. SIGTERM does the same. If the child
+dies, every call raises :class:`~.errors.DriverError` and the snapshot's state is FAULT with
+a ``cycle_stopped`` fault (on hardware the drives stop on the master's heartbeat loss).
+"""
+from __future__ import annotations
+
+import dataclasses
+import gc
+import itertools
+import logging
+import os
+import pickle
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from multiprocessing.connection import Connection
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..control.execution import ExecutionEvent, ExecutionState
+from .errors import DriverError, DriverInitializationError
+from .state import Feedback, MasterConfig, MasterState, MasterStatus
+from .supervision import Fault, FaultKind
+
+__all__ = ['MasterProcess', 'Snapshot', 'label_threads', 'snapshot_of', 'wrench_capacity_context']
+
+log = logging.getLogger('brace_control.can.process')
+
+#: calls that may take seconds (a 402 transition, homing, a relief): a thread each in the child
+SLOW_CALLS = frozenset({'boot', 'enable', 'disable', 'halt', 'home', 'recover', 'relieve',
+                        'take_up', 'shutdown'})
+#: calls of a stream (at its rate) and reads that change nothing: answered without a snapshot
+NO_SNAPSHOT = frozenset({'set_targets', 'set_interaction_goal', 'status', 'set_rest_pose'})
+#: longest the child may take to start (interpreter, numpy, canopen, the simulator) (s)
+START_TIMEOUT_S = 60.0
+#: longest the child may take to end once told (s); then it is killed
+EXIT_TIMEOUT_S = 5.0
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """What the node reads of the master between commands: one consistent sample."""
+
+    state: MasterState
+    homed: bool
+    taking_up: bool
+    relieved: bool
+    faults: tuple[Fault, ...]
+    latched: bool
+    fault_summary: str
+    execution: ExecutionState
+    command: tuple[float, ...] | None     # the executor's command, if anchored
+    interacting: bool                     # the in-cycle admittance drives the command
+    last_pose: np.ndarray | None          # the newest pose the wrench tiers solved
+    feedback: Feedback
+    events: tuple[ExecutionEvent, ...]    # execution events since the previous snapshot
+    truth: Any = None                     # the simulator's truth of the feedback's SYNC
+
+
+def portable(value: Any) -> Any:
+    """``value`` without what cannot cross a process boundary: a fault's ``still_present``
+    predicate (it is evaluated where the fault was latched, at ``recover()``)."""
+    if isinstance(value, Fault):
+        return dataclasses.replace(value, still_present=None) if value.still_present else value
+    if isinstance(value, MasterStatus):
+        return dataclasses.replace(value, faults=portable(value.faults))
+    if isinstance(value, (list, tuple)):
+        return type(value)(portable(v) for v in value)
+    return value
+
+
+def snapshot_of(master: Any, sim: Any = None) -> Snapshot:
+    """The master's (and the simulator's) state now; drains the master's execution events."""
+    fb = master.feedback()
+    truth = None
+    if sim is not None:
+        # the truth of the SYNC the feedback describes (same stamp): a comparison with the
+        # estimate pairs the same instant, not two SYNCs ms apart
+        wall = fb.wall
+        truth = sim.truth_at(wall) if wall and time.time() - wall < 0.1 else sim.truth()
+    return Snapshot(state=master.state, homed=master.homed, taking_up=master.taking_up,
+                    relieved=master.relieved, faults=portable(master.faults),
+                    latched=master.latched, fault_summary=master.fault_summary(),
+                    execution=master.execution, command=master.command,
+                    interacting=master.interacting, last_pose=master.last_pose, feedback=fb,
+                    events=tuple(master.execution_events()), truth=truth)
+
+
+def wrench_capacity_context(master: Any, mechanism: Any, max_force: float) -> Callable[[int, float], str]:
+    """What a soft-limit stop adds to its reason (docs/safety.md §14): the platform's wrench
+    capacity at the pose the actuators measure (``master.soft_limit_context``)."""
+    def context(index: int, force: float) -> str:
+        if mechanism is None or not hasattr(mechanism, 'wrench_capacity'):
+            return ''
+        guess = master.last_pose
+        if guess is None:
+            guess = np.asarray(mechanism.home_pose, float)
+        try:
+            pose = np.asarray(mechanism.forward_nearest(master.feedback().position, guess), float)
+            cap, _ = mechanism.wrench_capacity(pose, max_force, return_limiting=True)
+        except ValueError as exc:
+            return f' (capacity unknown: {exc})'
+        axes = getattr(mechanism, 'wrench_axes', tuple(f'#{i}' for i in range(len(cap))))
+        parts = ', '.join(f'{a} {c:.3g}' for a, c in zip(axes, cap))
+        return f'; wrench capacity at pose {np.round(pose, 4).tolist()}: {parts}'
+    return context
+
+
+# ---------------------------------------------------------------------------------- parent
+
+class _Remote:
+    """An object in the child, reached by attribute path: ``remote.faults.disconnect(2)``
+    calls there; reading an attribute returns its value when it can cross (else another
+    path); setting one sets it there. For what a user or a test reaches into (the simulated
+    brace's fault injection, the patient); the node's own reads come from snapshots."""
+
+    def __init__(self, owner: MasterProcess, target: str, path: str = '') -> None:
+        object.__setattr__(self, '_owner', owner)
+        object.__setattr__(self, '_target', target)
+        object.__setattr__(self, '_path', path)
+
+    def _sub(self, name: str) -> str:
+        return f'{self._path}.{name}' if self._path else name
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith('__'):
+            raise AttributeError(name)
+        path = self._sub(name)
+        kind, value = self._owner.call(self._target, 'peek:' + path)
+        return value if kind == 'value' else _Remote(self._owner, self._target, path)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        self._owner.call(self._target, 'set:' + self._sub(name), value)
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        return self._owner.call(self._target, self._path, *args, **kwargs)
+
+
+class _SimView(_Remote):
+    """The simulated brace as the node sees it from the parent: its truth from the
+    snapshots (no round trip), the rest by path (:class:`_Remote`). Its start and end are
+    the child's."""
+
+    def truth(self) -> Any:
+        return self._owner.snapshot.truth
+
+    def truth_at(self, wall: float) -> Any:
+        return self._owner.snapshot.truth
+
+    def set_rest_pose(self, pose: np.ndarray, stamp: float | None = None) -> None:
+        self._owner.call('sim', 'set_rest_pose', np.asarray(pose, float), stamp)
+
+    def start(self) -> _SimView:
+        return self
+
+    def shutdown(self) -> None:
+        pass
+
+
+class _SupervisorView:
+    """``master.supervisor``'s reads, from the newest snapshot."""
+
+    def __init__(self, owner: MasterProcess) -> None:
+        self._owner = owner
+
+    @property
+    def faults(self) -> tuple[Fault, ...]:
+        return self._owner.snapshot.faults
+
+    @property
+    def latched(self) -> bool:
+        return self._owner.snapshot.latched
+
+    def summary(self) -> str:
+        return self._owner.snapshot.fault_summary
+
+    def has(self, kind: FaultKind, drive: str | None = ...) -> bool:  # type: ignore[assignment]
+        return any(f.kind == kind and (drive is ... or f.drive == drive) for f in self.faults)
+
+
+class _ExecutorView:
+    """``master.executor``'s reads, from the newest snapshot."""
+
+    def __init__(self, owner: MasterProcess) -> None:
+        self._owner = owner
+
+    @property
+    def state(self) -> ExecutionState:
+        return self._owner.snapshot.execution
+
+    @property
+    def anchored(self) -> bool:
+        return self._owner.snapshot.command is not None
+
+    @property
+    def q(self) -> np.ndarray:
+        return np.asarray(self._owner.snapshot.command or (), float)
+
+    @property
+    def source(self) -> bool | None:
+        """True while the in-cycle admittance drives the command (the object stays there)."""
+        return True if self._owner.snapshot.interacting else None
+
+
+class MasterProcess:
+    """A :class:`~.master.BraceMaster` (and, with ``can.sim``, the simulated brace) in a
+    child process (module docstring); the node calls it as it would the master.
+
+    :param cfg: the device configuration (the child builds the simulator from it).
+    :param config: the master's configuration (its mechanism included).
+    :param on_snapshot: called (in the reader thread) after each periodic snapshot (at
+        ``can.joint_state_rate_hz``) arrives: the node publishes its joint states then.
+    """
+
+    def __init__(self, cfg: Mapping[str, Any], config: MasterConfig, *,
+                 on_snapshot: Callable[[], None] | None = None,
+                 start_timeout: float = START_TIMEOUT_S) -> None:
+        self.config = config
+        self.names = config.names
+        self.limits = config.limits
+        self._on_snapshot = on_snapshot
+        self._ids = itertools.count(1)
+        self._pending: dict[int, list] = {}
+        self._pending_lock = threading.Lock()
+        self._send_lock = threading.Lock()
+        self._events: list[ExecutionEvent] = []
+        self._events_lock = threading.Lock()
+        self._ended: str | None = None
+        self._closing = False
+        self._snapshot: Snapshot | None = None
+        self._ready = threading.Event()
+        self._info: dict[str, Any] = {}
+        ours, theirs = socket.socketpair()
+        package_root = str(Path(__file__).resolve().parents[2])
+        env = dict(os.environ)
+        env['PYTHONPATH'] = os.pathsep.join(p for p in (package_root, env.get('PYTHONPATH')) if p)
+        for var in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS'):
+            env.setdefault(var, '1')   # 3x3 algebra: a BLAS thread pool only spins and contends
+        try:
+            self._proc = subprocess.Popen(
+                [sys.executable, '-m', 'brace_control.can.process', str(theirs.fileno())],
+                pass_fds=(theirs.fileno(),), env=env, stdin=subprocess.DEVNULL)
+        finally:
+            theirs.close()
+        self._conn = Connection(ours.detach())
+        self._fresh = threading.Event()
+        self._reader = threading.Thread(target=self._read, name='brace_cycle_reader', daemon=True)
+        self._reader.start()
+        if on_snapshot is not None:
+            threading.Thread(target=self._notify, name='brace_cycle_samples', daemon=True).start()
+        try:
+            self._send(('setup', pickle.dumps((cfg, config))))
+            if not self._ready.wait(start_timeout) or self._ended:
+                raise DriverInitializationError(
+                    f'the control cycle process did not start within {start_timeout:g} s'
+                    + (f': {self._ended}' if self._ended else ''))
+            if 'error' in self._info:
+                raise self._info['error']
+        except BaseException:
+            self.close()
+            raise
+        self.sim = _SimView(self, 'sim') if self._info.get('sim') else None
+        #: the master's supervisor and executor, read-only, as of the newest snapshot
+        self.supervisor = _SupervisorView(self)
+        self.executor = _ExecutorView(self)
+
+    # -- the child's answers
+
+    def _read(self) -> None:
+        try:
+            while True:
+                msg = self._conn.recv()
+                kind = msg[0]
+                if kind == 'snap':
+                    self._apply(msg[1], periodic=True)
+                elif kind == 'reply':
+                    _, ident, ok, value, snap = msg
+                    self._apply(snap)
+                    with self._pending_lock:
+                        slot = self._pending.pop(ident, None)
+                    if slot is not None:
+                        slot[1], slot[2] = ok, value
+                        slot[0].set()
+                elif kind == 'log':
+                    _, name, level, text = msg
+                    logging.getLogger(name).log(level, '%s', text)
+                elif kind == 'ready':
+                    self._info = msg[1]
+                    if msg[2] is not None:
+                        self._apply(msg[2])
+                    self._ready.set()
+        except (EOFError, OSError) as exc:
+            code = self._proc.poll()
+            self._end('the control cycle process was closed' if self._closing else
+                      f'the control cycle process ended (exit code {code})' if code is not None
+                      else f'the control cycle process stopped answering ({exc!r})')
+        except Exception as exc:  # noqa: BLE001 - an unreadable message: the link is lost
+            self._end(f'the control cycle process link broke: {exc!r}')
+            log.exception('reading the control cycle process')
+
+    def _apply(self, snap: Snapshot | None, *, periodic: bool = False) -> None:
+        if snap is None:
+            return
+        if snap.events:
+            with self._events_lock:
+                self._events.extend(snap.events)
+        self._snapshot = snap
+        if periodic and self._on_snapshot is not None:
+            self._fresh.set()             # the callback runs in its own thread (it may call)
+
+    def _notify(self) -> None:
+        """Call ``on_snapshot`` for the newest periodic snapshot (a slow callback skips to
+        the newest; it may call the child: the reader thread never waits on a reply)."""
+        while True:
+            self._fresh.wait()
+            self._fresh.clear()
+            if self._ended is not None:
+                return
+            try:
+                self._on_snapshot()
+            except DriverError:
+                pass                      # the child is going: the reader reports it
+            except Exception:  # noqa: BLE001 - the samples must go on
+                log.exception('snapshot callback')
+
+    def _end(self, why: str) -> None:
+        """The child is gone: the snapshot says FAULT (a ``cycle_stopped`` stop), then every
+        waiting and later call raises ``why``."""
+        snap = self._snapshot
+        if self._ended is None and snap is not None and snap.state is not MasterState.CLOSED \
+                and not self._closing:
+            fault = Fault(FaultKind.CYCLE_STOPPED, f'{why}; restart the driver', None, None,
+                          time.monotonic())
+            summary = fault.describe() if not snap.faults else f'{snap.fault_summary}; {fault.describe()}'
+            self._snapshot = dataclasses.replace(snap, state=MasterState.FAULT, faults=snap.faults + (fault,),
+                                                 latched=True, fault_summary=summary, events=())
+        if self._ended is None:
+            self._ended = why
+        self._ready.set()
+        self._fresh.set()
+        with self._pending_lock:
+            pending, self._pending = self._pending, {}
+        for slot in pending.values():
+            slot[1], slot[2] = False, DriverError(why)
+            slot[0].set()
+
+    # -- calls
+
+    def _send(self, msg: Any) -> None:
+        with self._send_lock:
+            self._conn.send(msg)
+
+    def call(self, target: str, name: str, *args: Any, **kwargs: Any) -> Any:
+        """``target.name(*args, **kwargs)`` in the child; its result, or its exception."""
+        if self._ended is not None:
+            raise DriverError(self._ended)
+        ident = next(self._ids)
+        slot: list = [threading.Event(), False, None]
+        with self._pending_lock:
+            self._pending[ident] = slot
+        payload = pickle.dumps((args, kwargs))      # what cannot cross raises here, in the caller
+        try:
+            self._send(('call', ident, target, name, payload))
+        except (OSError, ValueError) as exc:
+            with self._pending_lock:
+                self._pending.pop(ident, None)
+            raise DriverError(self._ended or f'the control cycle process is gone: {exc!r}') from exc
+        slot[0].wait()
+        if slot[1]:
+            return slot[2]
+        raise slot[2]
+
+    # -- reads, from the newest snapshot
+
+    @property
+    def snapshot(self) -> Snapshot:
+        snap = self._snapshot
+        if snap is None:
+            raise DriverError(self._ended or 'the control cycle process has sent no sample yet')
+        return snap
+
+    state = property(lambda self: self.snapshot.state)
+    homed = property(lambda self: self.snapshot.homed)
+    taking_up = property(lambda self: self.snapshot.taking_up)
+    relieved = property(lambda self: self.snapshot.relieved)
+    faults = property(lambda self: self.snapshot.faults)
+    latched = property(lambda self: self.snapshot.latched)
+    execution = property(lambda self: self.snapshot.execution)
+    command = property(lambda self: self.snapshot.command)
+    interacting = property(lambda self: self.snapshot.interacting)
+    last_pose = property(lambda self: self.snapshot.last_pose)
+
+    def fault_summary(self) -> str:
+        return self.snapshot.fault_summary
+
+    def feedback(self) -> Feedback:
+        return self.snapshot.feedback
+
+    def execution_events(self) -> list[ExecutionEvent]:
+        with self._events_lock:
+            events, self._events = self._events, []
+        return events
+
+    @property
+    def boot_report(self) -> tuple[str, ...]:
+        return tuple(self.call('master', 'get:boot_report'))
+
+    @property
+    def ended(self) -> str | None:
+        """Why the child is gone (``None`` while it runs)."""
+        return self._ended
+
+    @property
+    def pid(self) -> int:
+        return self._proc.pid
+
+    # -- commands: the master's API
+
+    def boot(self) -> None:
+        self.call('master', 'boot')
+
+    def home(self, **kw: Any) -> None:
+        self.call('master', 'home', **kw)
+
+    def enable(self, **kw: Any) -> None:
+        self.call('master', 'enable', **kw)
+
+    def disable(self, **kw: Any) -> None:
+        self.call('master', 'disable', **kw)
+
+    def halt(self, **kw: Any) -> None:
+        self.call('master', 'halt', **kw)
+
+    def recover(self, **kw: Any) -> list[Fault]:
+        return self.call('master', 'recover', **kw)
+
+    def relieve(self, **kw: Any) -> str:
+        return self.call('master', 'relieve', **kw)
+
+    def take_up(self, **kw: Any) -> str:
+        return self.call('master', 'take_up', **kw)
+
+    def status(self) -> MasterStatus:
+        return self.call('master', 'status')
+
+    def execute(self, trajectory: Any, *, start: float, tag: int) -> str | None:
+        return self.call('master', 'execute', trajectory, start=start, tag=tag)
+
+    def stop_motion(self, reason: str, *, tag: int | None = None) -> None:
+        self.call('master', 'stop_motion', reason, tag=tag)
+
+    def set_targets(self, positions: Any, *, stamp: float | None = None, velocities: Any = None) -> None:
+        self.call('master', 'set_targets', np.asarray(positions, float), stamp=stamp,
+                  velocities=None if velocities is None else np.asarray(velocities, float))
+
+    def start_interaction(self, source: Any, tag: int) -> str | None:
+        return self.call('master', 'start_interaction', source, tag)
+
+    def stop_interaction(self, reason: str) -> None:
+        self.call('master', 'stop_interaction', reason)
+
+    def set_interaction_goal(self, wrench: Any) -> None:
+        self.call('master', 'set_interaction_goal', list(wrench))
+
+    def protective_stop(self, kind: FaultKind, cause: str, *, drive: str | None = None) -> Any:
+        return self.call('master', 'protective_stop', kind, cause, drive=drive)
+
+    def shutdown(self, *, timeout: float = 0.5) -> None:
+        """Drives disabled, bus closed, simulator off (in the child), then the child ends."""
+        if self._ended is None:
+            try:
+                self.call('master', 'shutdown', timeout=timeout)
+            except DriverError:
+                pass
+        self.close()
+
+    def close(self) -> None:
+        """End the child (told first; SIGTERM, then SIGKILL, if it does not end) and the link."""
+        self._closing = True
+        if self._proc.poll() is None:
+            try:
+                self._send(('exit',))
+            except (OSError, ValueError):
+                pass
+            try:
+                self._proc.wait(EXIT_TIMEOUT_S)
+            except subprocess.TimeoutExpired:
+                self._proc.terminate()
+                try:
+                    self._proc.wait(EXIT_TIMEOUT_S)
+                except subprocess.TimeoutExpired:
+                    self._proc.kill()
+                    self._proc.wait()
+        try:
+            self._conn.close()
+        except OSError:
+            pass
+        self._reader.join(timeout=EXIT_TIMEOUT_S)
+        if self._ended is None:
+            self._ended = 'the control cycle process was closed'
+
+    def __enter__(self) -> MasterProcess:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.shutdown()
+
+
+def label_threads(master: Any) -> None:
+    """Name this process's OS threads after their job (``/proc/<pid>/task/*/comm``: ``top
+    -H``, ``ps -L``, bench_stack's split of the master's CPU from the simulator's): the
+    master's SYNC thread ``master-sync`` and receive thread ``master-rx``; any other
+    python-can receive thread is the simulated brace's ``sim-rx``; its clock ``sim-timer``."""
+    import can
+    master_rx = getattr(getattr(master, 'network', None), 'notifier', None)
+    for t in threading.enumerate():
+        owner = getattr(getattr(t, '_target', None), '__self__', None)
+        if isinstance(owner, can.Notifier):
+            name = 'master-rx' if owner is master_rx else 'sim-rx'
+        elif t is threading.main_thread():
+            continue
+        else:
+            name = {'brace-can-sync': 'master-sync', 'brace_cycle_push': 'cycle-push'}.get(
+                t.name, 'sim-timer' if t.name.startswith('sim-timer') else t.name)
+        try:
+            with open(f'/proc/self/task/{t.native_id}/comm', 'w') as f:
+                f.write(name[:15])
+        except OSError:                      # not Linux, or the thread just ended
+            pass
+
+
+# ----------------------------------------------------------------------------------- child
+
+class _Child:
+    """The child's side: the master (and the simulator), the commands, the snapshots."""
+
+    def __init__(self, conn: Connection) -> None:
+        self.conn = conn
+        self.send_lock = threading.Lock()
+        self.master: Any = None
+        self.sim: Any = None
+        self.stop = threading.Event()
+        #: the parent went without saying (its link closed, or SIGTERM): say what was left
+        self.orphaned = False
+        self.frozen = False
+
+    def send(self, msg: Any) -> None:
+        self.try_send(msg)
+
+    def try_send(self, msg: Any) -> bool:
+        try:
+            with self.send_lock:
+                self.conn.send(msg)
+            return True
+        except (OSError, ValueError):
+            self.stop.set()           # the parent is gone
+            return False
+
+    def send_with_snapshot(self, make: Callable[[Snapshot | None], Any]) -> None:
+        """Take a snapshot and send it (inside ``make``'s message) under one lock: the parent
+        gets them in the order they were taken, each event once."""
+        try:
+            with self.send_lock:
+                self.conn.send(make(self.snapshot()))
+        except (OSError, ValueError):
+            self.stop.set()
+
+    def snapshot(self) -> Snapshot | None:
+        if self.master is None:
+            return None
+        try:
+            return snapshot_of(self.master, self.sim)
+        except Exception:  # noqa: BLE001 - e.g. before the first feedback
+            log.exception('snapshot')
+            return None
+
+    def setup(self, payload: bytes) -> None:
+        from .master import BraceMaster
+        cfg, config = pickle.loads(payload)
+        info: dict[str, Any] = {'sim': False}
+        try:
+            from ..config import as_device_config
+            cfg = as_device_config(cfg)
+            got = set_scheduling(int(cfg['can']['cycle_priority']), int(cfg['can']['cycle_nice']))
+            if got.startswith('SCHED_FIFO') and not config.thread_priority:
+                # the SYNC thread one above its process: on waking it preempts the
+                # simulator's threads (which then hold the interpreter lock at most
+                # gil_switch_interval_us longer) rather than queueing behind them
+                config = dataclasses.replace(config, thread_priority=int(cfg['can']['cycle_priority']) + 1)
+            switch_us = int(cfg['can']['gil_switch_interval_us'])
+            if switch_us > 0:
+                sys.setswitchinterval(switch_us * 1e-6)
+            if cfg['can']['sim']:
+                from ..sim import SimulatedBrace
+                self.sim = SimulatedBrace(cfg, channel=config.channel, interface=config.interface,
+                                          eds=config.eds, mechanism=config.mechanism, start=False)
+                self.sim.start()
+                info['sim'] = True
+            master = BraceMaster(config)
+            master.soft_limit_context = wrench_capacity_context(
+                master, config.mechanism, float(cfg['actuator']['max_force']))
+            self.master = master
+        except Exception as exc:  # noqa: BLE001 - the parent raises it
+            info['error'] = _portable_error(exc)
+        self.send_with_snapshot(lambda snap: ('ready', info, snap))
+        rate = float(cfg['can']['joint_state_rate_hz']) if 'error' not in info else 0.0
+        if rate > 0:
+            threading.Thread(target=self.push, args=(1.0 / rate,), name='brace_cycle_push',
+                             daemon=True).start()
+
+    def push(self, period: float) -> None:
+        next_t = time.monotonic()
+        while not self.stop.is_set():
+            next_t += period
+            delay = next_t - time.monotonic()
+            if delay < -period:                 # fell behind (a stalled host): start afresh
+                next_t = time.monotonic()
+            elif delay > 0 and self.stop.wait(delay):
+                break
+            self.send_with_snapshot(lambda snap: ('snap', snap))
+
+    def run_call(self, ident: int, target: str, name: str, payload: bytes) -> None:
+        try:
+            args, kwargs = pickle.loads(payload)
+            obj = self.master if target == 'master' else self.sim
+            if obj is None:
+                raise DriverError(f'no {target} in the control cycle process')
+            op, _, path = name.rpartition(':')
+            *parents, last = path.split('.')
+            for part in parents:
+                obj = getattr(obj, part)
+            if op == 'get':
+                value = getattr(obj, last)
+            elif op == 'peek':
+                value = getattr(obj, last)
+                try:
+                    crosses = not callable(value) and pickle.loads(pickle.dumps(value)) is not None
+                except Exception:  # noqa: BLE001 - stays there, reached by path
+                    crosses = False
+                value = ('value', value) if crosses or value is None else ('object', None)
+            elif op == 'set':
+                setattr(obj, last, *args)
+                value = None
+            else:
+                value = getattr(obj, last)(*args, **kwargs)
+            value = portable(value)
+            pickle.dumps(value)
+            ok = True
+        except BaseException as exc:  # noqa: BLE001 - the caller gets it
+            ok, value = False, _portable_error(exc)
+        if name in SLOW_CALLS:
+            label_threads(self.master)          # boot and enable start threads
+        if name == 'boot' and ok and not self.frozen:
+            # the start-up heap (modules, the object dictionaries, the models) out of the
+            # cyclic collector's passes, which hold the GIL (bench/RESULTS.md "Host stalls")
+            gc.freeze()
+            self.frozen = True
+        if name in NO_SNAPSHOT or name.startswith(('get:', 'peek:')):
+            self.send(('reply', ident, ok, value, None))
+        else:
+            self.send_with_snapshot(lambda snap: ('reply', ident, ok, value, snap))
+
+    def serve(self) -> None:
+        while not self.stop.is_set():
+            try:
+                msg = self.conn.recv()
+            except (EOFError, OSError):
+                self.orphaned = True
+                log.warning('control cycle process: the driver node is gone: disabling the drives '
+                            'and closing the bus')
+                break
+            kind = msg[0]
+            if kind == 'setup':
+                self.setup(msg[1])
+            elif kind == 'call':
+                _, ident, target, name, payload = msg
+                if name in SLOW_CALLS:
+                    threading.Thread(target=self.run_call, args=(ident, target, name, payload),
+                                     name=f'brace_cycle_{name}', daemon=True).start()
+                else:
+                    self.run_call(ident, target, name, payload)
+            elif kind == 'exit':
+                break
+
+    def close(self) -> None:
+        self.stop.set()
+        if self.master is not None:
+            try:
+                self.master.shutdown()
+                if self.orphaned:
+                    states = ', '.join(f'{d.name} {d.state.value}' for d in self.master.status().drives)
+                    log.warning('control cycle process: drives after shutdown: %s', states)
+            except Exception:  # noqa: BLE001 - closing anyway
+                log.exception('closing the CAN master')
+        if self.sim is not None:
+            try:
+                self.sim.shutdown()
+            except Exception:  # noqa: BLE001
+                log.exception('stopping the simulated brace')
+
+
+def set_scheduling(priority: int, nice: int) -> str:
+    """The scheduling of this process's threads (those made later inherit it; call it before
+    the master and the simulator start theirs): SCHED_FIFO ``priority``, else niceness
+    ``nice``, else unchanged. Returns what was set.
+
+    Measured (bench/RESULTS.md, "The control cycle in its own process"): with two busy loops
+    on the two cores, SYNC overruns were 29 % at normal scheduling, 3.5 % at niceness -10 and
+    0.14 % at SCHED_FIFO 50. Every thread of the process gets the priority, not only the
+    SYNC thread: the threads share one interpreter lock, and a SYNC thread above the lock's
+    holder only waits for it (priority inversion, bench/RESULTS.md "CAN"). Both need
+    CAP_SYS_NICE, or an allowance (``/etc/security/limits.conf``: ``@realtime - rtprio 50``,
+    ``- nice -10``), as ros2_control's node asks for its real-time loop; without, the log
+    says which was refused.
+    """
+    refused = []
+    if priority > 0:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+            return f'SCHED_FIFO {priority}'
+        except (OSError, AttributeError) as exc:
+            refused.append(f'can.cycle_priority {priority} ({getattr(exc, "strerror", None) or exc})')
+    if nice != 0:
+        try:
+            os.setpriority(os.PRIO_PROCESS, 0, nice)
+            got = f'niceness {nice}'
+        except OSError as exc:
+            refused.append(f'can.cycle_nice {nice} ({exc.strerror})')
+            got = f'niceness {os.getpriority(os.PRIO_PROCESS, 0)}'
+    else:
+        got = 'normal scheduling'
+    if refused:
+        log.warning('control cycle process runs at %s: %s refused; allow it with CAP_SYS_NICE or '
+                    'limits.conf (rtprio %d, nice %d)', got, ' and '.join(refused), priority, nice)
+    return got
+
+
+def _portable_error(exc: BaseException) -> BaseException:
+    """``exc`` if it survives pickling as itself, else a :class:`DriverError` saying it."""
+    try:
+        back = pickle.loads(pickle.dumps(exc))
+        if type(back) is type(exc) and str(back) == str(exc):
+            return exc
+    except Exception:  # noqa: BLE001
+        pass
+    return DriverError(f'{type(exc).__name__}: {exc}')
+
+
+class _ForwardLog(logging.Handler):
+    """The child's log records, to the parent's loggers of the same names."""
+
+    def __init__(self, child: _Child) -> None:
+        super().__init__(logging.INFO)
+        self.child = child
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            text = self.format(record)
+        except Exception:  # noqa: BLE001
+            text = str(record.msg)
+        if self.child.stop.is_set() or not self.child.try_send(('log', record.name, record.levelno, text)):
+            # the parent is gone (or going): the inherited stderr is what is left
+            print(f'[{record.levelname}] [{record.name}] {text}', file=sys.stderr, flush=True)
+
+
+def _child_main(fd: int) -> int:
+    child = _Child(Connection(fd))
+    # a terminal's signals are the parent's to handle; SIGTERM ends the child in order
+    for sig in (signal.SIGINT, signal.SIGHUP):
+        signal.signal(sig, signal.SIG_IGN)
+
+    def terminate(signum: int, frame: Any) -> None:
+        child.orphaned = True
+        raise SystemExit(0)
+    signal.signal(signal.SIGTERM, terminate)
+    try:
+        with open('/proc/self/comm', 'w') as f:
+            f.write('cycle-commands')
+    except OSError:
+        pass
+    root = logging.getLogger('brace_control')
+    root.addHandler(_ForwardLog(child))
+    root.setLevel(logging.INFO)
+    root.propagate = False
+    try:
+        child.serve()
+    finally:
+        child.close()
+    return 0
+
+
+if __name__ == '__main__':
+    # run as the package's module, not as __main__: the snapshot's classes are pickled by
+    # their module's name, which the parent imports as brace_control.can.process
+    from brace_control.can import process as _process
+    sys.exit(_process._child_main(int(sys.argv[1])))

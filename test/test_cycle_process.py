@@ -1,0 +1,168 @@
+"""The control cycle in a process of its own (issue 27, :mod:`brace_control.can.process`).
+
+The master and the simulated brace run in a child; the parent reads them from snapshots and
+commands them by call. Oracles: the simulator's truth (the child's own, sent with each
+snapshot) and the minimum-jerk law (rpr_oracles), never the master's setpoints; for
+supervision, the operating system's view of the processes.
+"""
+from __future__ import annotations
+
+import itertools
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import numpy as np
+import pytest
+
+from brace_control.can import ActuatorTrajectory, DriverError, FaultKind, MasterConfig, MasterState
+from brace_control.can.process import MasterProcess
+from brace_control.config import load_device_config
+from brace_control.mechanisms import mechanism_from_config
+from rpr_oracles import min_jerk
+from test_can_master import wait_for
+
+CFG = load_device_config('lumbar_brace')
+MECH = mechanism_from_config(CFG)
+_ids = itertools.count()
+
+
+def _config(**overrides) -> MasterConfig:
+    return MasterConfig.from_device_config(CFG, mechanism=MECH,
+                                           channel=f'proc-{os.getpid()}-{next(_ids)}', **overrides)
+
+
+def _alive(pid: int) -> bool:
+    """The process exists and is not a zombie (a child nobody reaped yet counts as gone)."""
+    try:
+        with open(f'/proc/{pid}/stat') as f:
+            return f.read().rsplit(')', 1)[1].split()[0] != 'Z'
+    except FileNotFoundError:
+        return False
+
+
+@pytest.fixture
+def enabled():
+    mp = MasterProcess(CFG, _config())
+    try:
+        mp.boot()
+        mp.home()
+        mp.enable()
+        yield mp
+    finally:
+        mp.shutdown()
+
+
+def test_a_trajectory_runs_in_the_child_and_the_truth_follows_it(enabled):
+    """A 5 mm minimum-jerk lift of every leg, sent to the child: its events come back once
+    each, in order, and the simulated legs end where the law ends (truth, 0.2 mm)."""
+    mp = enabled
+    assert mp.state is MasterState.ENABLED and mp.homed
+    q0 = np.asarray(mp.sim.truth().lengths, float)
+    t, q, v, a = min_jerk(q0, q0 + 0.005, 0.6, 61)
+    tag = 42
+    assert mp.execute(ActuatorTrajectory(t, q, v, a), start=time.perf_counter() + 0.05, tag=tag) is None
+    events: list = []
+    wait_for(lambda: events.extend(mp.execution_events()) or
+             any(e.kind == 'finished' for e in events), 10.0, 'finished')
+    kinds = [e.kind for e in events if e.tag == tag]
+    assert kinds == ['accepted', 'started', 'finished'], kinds
+    wait_for(lambda: np.max(np.abs(np.asarray(mp.sim.truth().lengths) - q[-1])) < 2e-4, 3.0,
+             'the legs at the end of the law')
+    # what the node publishes as the measurement: the drives' encoders, within a count
+    fb = mp.feedback()
+    assert fb.valid and np.max(np.abs(fb.position - np.asarray(mp.sim.truth().lengths))) < 1e-5
+
+
+def test_bad_input_crosses_back_as_the_error_it_was(enabled):
+    """A setpoint outside the stroke: ValueError naming the leg and the stroke, nothing
+    moves; a command on a closed master: DriverError."""
+    mp = enabled
+    before = np.asarray(mp.sim.truth().lengths, float)
+    with pytest.raises(ValueError, match=r'a1 = 9\.00000 m is outside the stroke'):
+        mp.set_targets([9.0, 0.39, 0.39])
+    with pytest.raises(ValueError, match='expected 3 target positions'):
+        mp.set_targets([0.39, 0.39])
+    time.sleep(0.05)
+    assert np.max(np.abs(np.asarray(mp.sim.truth().lengths) - before)) < 1e-5
+    assert not mp.latched
+
+
+def test_faults_injected_in_the_child_latch_and_read_back(enabled):
+    """The simulator's fault injection, reached by path from the parent: a load cell reading
+    past safety.force_limit latches a FORCE_LIMIT stop (read from the snapshots)."""
+    mp = enabled
+    limit = float(CFG['safety']['force_limit'])
+    mp.sim.faults.set_load_cell(2, 1.06 * limit)        # below the cell's saturation (95 % of 300 N)
+    wait_for(lambda: mp.latched, 3.0, 'protective stop')
+    assert mp.supervisor.has(FaultKind.FORCE_LIMIT)
+    assert 'a2' in mp.fault_summary()
+    mp.sim.faults.set_load_cell(2, None)
+
+
+def test_a_dead_child_is_a_fault_and_every_call_says_so():
+    mp = MasterProcess(CFG, _config())
+    try:
+        mp.boot()
+        os.kill(mp.pid, signal.SIGKILL)
+        wait_for(lambda: mp.ended is not None, 5.0, 'the parent notices')
+        assert mp.state is MasterState.FAULT and mp.supervisor.has(FaultKind.CYCLE_STOPPED)
+        assert 'control cycle process' in mp.ended
+        with pytest.raises(DriverError, match='control cycle process'):
+            mp.home()
+    finally:
+        mp.shutdown()
+    assert not _alive(mp.pid)
+
+
+def test_terminal_signals_are_the_parents(enabled):
+    """SIGINT and SIGHUP (a Ctrl-C, a closed terminal reach the whole process group) leave
+    the child running: the parent disables the drives through it."""
+    mp = enabled
+    for sig in (signal.SIGINT, signal.SIGHUP):
+        os.kill(mp.pid, sig)
+    time.sleep(0.2)
+    assert _alive(mp.pid) and mp.ended is None
+    mp.disable()
+    assert mp.state is MasterState.DISABLED
+
+
+PARENT = textwrap.dedent('''
+    import sys, time
+    from brace_control.can import MasterConfig
+    from brace_control.can.process import MasterProcess
+    from brace_control.config import load_device_config
+    from brace_control.mechanisms import mechanism_from_config
+    cfg = load_device_config('lumbar_brace')
+    mp = MasterProcess(cfg, MasterConfig.from_device_config(
+        cfg, mechanism=mechanism_from_config(cfg), channel=sys.argv[1]))
+    mp.boot(); mp.home(); mp.enable()
+    print(mp.pid, flush=True)
+    time.sleep(600)
+''')
+
+
+@pytest.mark.parametrize('sig', [signal.SIGKILL, signal.SIGTERM])
+def test_the_child_disables_the_drives_and_ends_with_its_parent(sig, tmp_path):
+    """The parent killed (SIGKILL: no clean-up of its own at all): the child sees its link
+    close, disables the drives (its last log line names their 402 states) and exits."""
+    err = tmp_path / 'stderr'
+    with open(err, 'w') as stderr:
+        parent = subprocess.Popen([sys.executable, '-c', PARENT, f'proc-{os.getpid()}-{next(_ids)}'],
+                                  stdout=subprocess.PIPE, stderr=stderr, text=True)
+    try:
+        child = int(parent.stdout.readline())
+        assert _alive(child)
+        parent.send_signal(sig)
+        parent.wait(10)
+        wait_for(lambda: not _alive(child), 10.0, 'the child ends', poll=0.02)
+    finally:
+        if parent.poll() is None:
+            parent.kill()
+            parent.wait()
+    text = err.read_text()
+    assert 'drives after shutdown: a1 SWITCH ON DISABLED, a2 SWITCH ON DISABLED, a3 SWITCH ON DISABLED' \
+        in text, text[-2000:]
