@@ -187,3 +187,26 @@ def test_safety_limits_are_read_only_at_run_time(ros):
         assert node.get_parameter('safety.force_limit').value == 250.0    # the YAML's value
     finally:
         node.shutdown()
+
+
+def test_a_dead_cycle_process_is_a_protective_stop_and_every_service_says_so(ros, driver):
+    """The control cycle's process killed (can.cycle_process, the default): the driver's
+    state turns to a protective stop naming it, ~/enable answers why instead of hanging, and
+    the node still shuts down cleanly."""
+    import signal
+
+    from diagnostic_msgs.msg import DiagnosticStatus
+
+    from brace_control.nodes import topics
+    probe = ros.node('probe_dead_cycle')
+    states = ros.collect(probe, DiagnosticStatus, topics.DRIVER_STATE, topics.LATCHED_QOS)
+    assert call(ros, probe, '/can_driver_node/home').success
+    pid = driver.master.pid
+    os.kill(pid, signal.SIGKILL)
+    ros.spin_until(lambda: any('control cycle process' in s.message and s.level == DiagnosticStatus.ERROR
+                               for s in states), 5.0,
+                   lambda: f'a protective stop on {topics.DRIVER_STATE}; got {[s.message for s in states]}')
+    res = call(ros, probe, '/can_driver_node/enable', timeout=10.0)
+    assert not res.success and 'control cycle process' in res.message, res.message
+    driver.shutdown()
+    assert driver.lifecycle_state == 'finalized'
