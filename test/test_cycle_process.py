@@ -100,7 +100,11 @@ def test_faults_injected_in_the_child_latch_and_read_back(enabled):
     wait_for(lambda: mp.latched, 3.0, 'protective stop')
     assert mp.supervisor.has(FaultKind.FORCE_LIMIT)
     assert 'a2' in mp.fault_summary()
+    # the rest of the master, reached by path: its answers are the child's
+    assert mp.moving is False
+    assert [f.kind for f in mp.supervisor.blocking()] == [FaultKind.FORCE_LIMIT]   # still pressing
     mp.sim.faults.set_load_cell(2, None)
+    wait_for(lambda: not mp.supervisor.blocking(), 3.0, 'the cause gone')
 
 
 def test_a_dead_child_is_a_fault_and_every_call_says_so():

@@ -194,11 +194,11 @@ class _SimView(_Remote):
         pass
 
 
-class _SupervisorView:
-    """``master.supervisor``'s reads, from the newest snapshot."""
+class _SupervisorView(_Remote):
+    """``master.supervisor``: its reads from the newest snapshot, the rest by path."""
 
     def __init__(self, owner: MasterProcess) -> None:
-        self._owner = owner
+        super().__init__(owner, 'master', 'supervisor')
 
     @property
     def faults(self) -> tuple[Fault, ...]:
@@ -215,11 +215,11 @@ class _SupervisorView:
         return any(f.kind == kind and (drive is ... or f.drive == drive) for f in self.faults)
 
 
-class _ExecutorView:
-    """``master.executor``'s reads, from the newest snapshot."""
+class _ExecutorView(_Remote):
+    """``master.executor``: its reads from the newest snapshot, the rest by path."""
 
     def __init__(self, owner: MasterProcess) -> None:
-        self._owner = owner
+        super().__init__(owner, 'master', 'executor')
 
     @property
     def state(self) -> ExecutionState:
@@ -380,6 +380,13 @@ class MasterProcess:
         for slot in pending.values():
             slot[1], slot[2] = False, DriverError(why)
             slot[0].set()
+
+    def __getattr__(self, name: str) -> Any:
+        """Anything else of the master, by path in the child (:class:`_Remote`): a value
+        that can cross, or an object whose methods are called there."""
+        if name.startswith('_'):
+            raise AttributeError(name)
+        return getattr(_Remote(self, 'master'), name)
 
     # -- calls
 
