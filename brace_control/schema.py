@@ -474,6 +474,15 @@ def mechanism_params(kind: Any) -> dict[str, Param] | None:
     return {**MECHANISM_COMMON, **MECHANISM_SCHEMAS[kind]}
 
 
+def mechanism_default(kind: Any, key: str) -> Any:
+    """The default of ``mechanism.<key>`` for mechanism type ``kind`` (a type without the
+    key, an unknown or absent type: the first type's that has it)."""
+    params = mechanism_params(kind)
+    if not params or key not in params:
+        params = mechanism_params(None)
+    return params[key].default
+
+
 # ---------------------------------------------------------------------------------- checking
 def flatten(params: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:
     """Nested mapping -> ``{'mechanism.type': 'rpr3', ...}`` as ROS names its parameters."""

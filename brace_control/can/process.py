@@ -35,6 +35,7 @@ a ``cycle_stopped`` fault (on hardware the drives stop on the master's heartbeat
 from __future__ import annotations
 
 import dataclasses
+import enum
 import gc
 import itertools
 import logging
@@ -677,11 +678,7 @@ class _Child:
                 value = getattr(obj, last)
             elif op == 'peek':
                 value = getattr(obj, last)
-                try:
-                    crosses = not callable(value) and pickle.loads(pickle.dumps(value)) is not None
-                except Exception:  # noqa: BLE001 - stays there, reached by path
-                    crosses = False
-                value = ('value', value) if crosses or value is None else ('object', None)
+                value = ('value', value) if _plain(value) else ('object', None)
             elif op == 'set':
                 setattr(obj, last, *args)
                 value = None
@@ -777,6 +774,22 @@ def set_scheduling(priority: int, nice: int) -> str:
         log.warning('control cycle process runs at %s: %s refused; allow it with CAP_SYS_NICE or '
                     'limits.conf (rtprio %d, nice %d)', got, ' and '.join(refused), priority, nice)
     return got
+
+
+def _plain(value: Any) -> bool:
+    """``value`` is data (numbers, text, arrays, enums, dataclass records and containers of
+    them): it crosses as a copy. Anything else (an object with state and methods) stays in
+    the child, reached by path, so that a call acts on the original."""
+    if isinstance(value, (type(None), bool, int, float, complex, str, bytes, np.ndarray, np.generic,
+                          enum.Enum)):
+        return True
+    if isinstance(value, (list, tuple, set, frozenset)):
+        return all(_plain(v) for v in value)
+    if isinstance(value, dict):
+        return all(_plain(k) and _plain(v) for k, v in value.items())
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return all(_plain(getattr(value, f.name)) for f in dataclasses.fields(value))
+    return False
 
 
 def _portable_error(exc: BaseException) -> BaseException:

@@ -42,6 +42,7 @@ from sensor_msgs.msg import JointState
 from ..can.units import actuator_kind, scaling_from_config
 from ..mechanisms import mechanism_from_config
 from ..mechanisms.pose_estimate import MeasurementModel, PoseEstimate, PoseEstimator
+from ..schema import mechanism_default
 from . import topics
 from .diagnostics import ERROR, OK, WARN, NodeDiagnostics
 from .msgs import (MalformedMessage, joint_state_arrays, pose_kind, pose_msg,
@@ -96,7 +97,9 @@ class KineticsNode(Node):
         margin = 0.05 * (hi - lo)
         self._q_low, self._q_high = lo - margin, hi + margin
         self._kind = pose_kind(self.mechanism)
-        self._cond_max = float(self.cfg['mechanism'].get('singularity_condition_max', 1e4))
+        # the model's (from the YAML); a model without a singularity test: the schema's default
+        self._cond_max = float(getattr(self.mechanism, 'singularity_condition_max', None)
+                               or mechanism_default(None, 'singularity_condition_max'))
         self.ambiguity_distance = float(kin['ambiguity_distance'])
         self.singularity_warn_fraction = float(kin['singularity_warn_fraction'])
         self.ambiguity_check_period = float(kin['ambiguity_check_period'])

@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..config import as_device_config
+from ..schema import mechanism_default
 from ..mechanisms.base import SingularPose
 from .actuator import UnreachableKnot, actuator_knots
 from .base import Trajectory, TrajectoryError
@@ -101,7 +102,9 @@ class Limits:
                    actuator_max_velocity=float(act['max_velocity']),
                    actuator_max_acceleration=float(act['max_acceleration']),
                    # the model's own default when the file has no mechanism (or no type)
-                   singularity_condition_max=float(mech.get('singularity_condition_max', 1e4)),
+                   singularity_condition_max=float(mech.get(
+                       'singularity_condition_max',
+                       mechanism_default(mech.get('type'), 'singularity_condition_max'))),
                    samples=int(traj['path_check_samples']),
                    limit_margin=float(traj['limit_margin']),
                    force_limits=float(act['max_force']),
