@@ -179,8 +179,12 @@ class Record:
 
 @pytest.fixture(scope='module')
 def stack(tmp_path_factory):
+    # the patient is the simulator's (its rest pose streamed, its effort limit set on it) and
+    # the steps are judged per truth sample: the cycle runs in this process. With the cycle
+    # in its own process, 1 run in ~5 lost ~0.5 s of distinct truth samples around ~/stop
+    # (10 in 0.6 s) in this one-process bring-up; not understood yet (issue 27's note)
     extra = ['-p', f'can.channel:=limits{next(_channels)}', '-p', 'can.sync_spin_us:=0',
-             '-p', 'sim.truth_rate_hz:=100.0',
+             '-p', 'sim.truth_rate_hz:=100.0', '-p', 'can.cycle_process:=false',
              '-p', f'safety.force_limit:={FORCE_LIMIT_N}', '-p', f'safety.soft_force_limit:={SOFT_FORCE_LIMIT_N}',
              '-p', f'safety.release_force:={0.4 * SOFT_FORCE_LIMIT_N}']
     with stack_in_process(LUMBAR, tmp_path_factory.mktemp('device'), extra) as b:

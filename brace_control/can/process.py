@@ -186,7 +186,8 @@ class _SimView(_Remote):
         return self._owner.snapshot.truth
 
     def set_rest_pose(self, pose: np.ndarray, stamp: float | None = None) -> None:
-        self._owner.call('sim', 'set_rest_pose', np.asarray(pose, float), stamp)
+        """A stream (the patient's trunk, 50-100 Hz): sent, not waited for."""
+        self._owner.cast('sim', 'set_rest_pose', np.asarray(pose, float), stamp)
 
     def start(self) -> _SimView:
         return self
@@ -414,6 +415,18 @@ class MasterProcess:
         if slot[1]:
             return slot[2]
         raise slot[2]
+
+    def cast(self, target: str, name: str, *args: Any, **kwargs: Any) -> None:
+        """``target.name(*args, **kwargs)`` in the child without waiting for it: for a stream
+        whose sender must not block on each sample (the patient's rest pose); an error is
+        logged there (and forwarded to this process's log)."""
+        if self._ended is not None:
+            raise DriverError(self._ended)
+        payload = pickle.dumps((args, kwargs))
+        try:
+            self._send(('cast', 0, target, name, payload))
+        except (OSError, ValueError) as exc:
+            raise DriverError(self._ended or f'the control cycle process is gone: {exc!r}') from exc
 
     # -- reads, from the newest snapshot
 
@@ -664,6 +677,14 @@ class _Child:
                 break
             self.send_with_snapshot(lambda snap: ('snap', snap))
 
+    def run_cast(self, target: str, name: str, payload: bytes) -> None:
+        """A call nobody waits for: its error is logged."""
+        try:
+            args, kwargs = pickle.loads(payload)
+            getattr(self.master if target == 'master' else self.sim, name)(*args, **kwargs)
+        except Exception as exc:  # noqa: BLE001 - nobody to raise it to
+            log.warning('%s.%s ignored: %s', target, name, exc)
+
     def run_call(self, ident: int, target: str, name: str, payload: bytes) -> None:
         try:
             args, kwargs = pickle.loads(payload)
@@ -720,6 +741,9 @@ class _Child:
                                      name=f'brace_cycle_{name}', daemon=True).start()
                 else:
                     self.run_call(ident, target, name, payload)
+            elif kind == 'cast':
+                _, _, target, name, payload = msg
+                self.run_cast(target, name, payload)
             elif kind == 'exit':
                 break
 

@@ -415,6 +415,14 @@ class CanDriverNode(LifecycleNode):
         :raises DriverError: the bus could not be opened or a drive did not boot.
         """
         mc = self.master_config
+        switch_us = int(self.cfg['can']['gil_switch_interval_us'])
+        if switch_us > 0 and self._previous_switch_interval is None:
+            # process-wide: a thread busy in Python (the executor, the simulator in this
+            # process, the cycle process's link) then holds the GIL at most this long when
+            # another wakes (the SYNC thread; a reply from the cycle process): Python's
+            # default is 5 ms; restored when the bus closes (in-process bring-ups, tests)
+            self._previous_switch_interval = sys.getswitchinterval()
+            sys.setswitchinterval(switch_us * 1e-6)
         if self.cfg['can']['cycle_process']:
             # the cycle, the drives' bus and the simulated brace in a process where rclpy
             # never runs (brace_control.can.process); its GIL switch interval is its own
@@ -425,13 +433,6 @@ class CanDriverNode(LifecycleNode):
                                        f'(control cycle process {self.master.pid})')
             self.master.boot()
             return
-        switch_us = int(self.cfg['can']['gil_switch_interval_us'])
-        if switch_us > 0 and self._previous_switch_interval is None:
-            # process-wide: a thread busy in Python (executor, simulator) then holds the GIL
-            # at most this long when the SYNC thread wakes (Python's default: 5 ms);
-            # restored when the bus closes (in-process bring-ups, tests)
-            self._previous_switch_interval = sys.getswitchinterval()
-            sys.setswitchinterval(switch_us * 1e-6)
         if self.cfg['can']['sim']:
             if self.sim is None:
                 from ..sim import SimulatedBrace
