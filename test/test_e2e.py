@@ -548,7 +548,7 @@ def process_bring_up(device_file, extra_args):
     node = rclpy.create_node('e2e_probe', context=ctx)
     executor = SingleThreadedExecutor(context=ctx)
     executor.add_node(node)
-    BackgroundSpinner(executor, 'probe-executor').start()
+    spinner = BackgroundSpinner(executor, 'probe-executor').start()
     probe = Probe(node)
     try:
         for what in ('home', 'enable'):
@@ -567,6 +567,7 @@ def process_bring_up(device_file, extra_args):
     finally:
         # this process's participant goes first: it then never delivers the node processes'
         # removal (a Fast DDS deadlock window, conftest.TEST_LIMIT_S)
+        spinner.stop()                        # no spin on a context being shut down
         executor.shutdown()
         node.destroy_node()
         rclpy.shutdown(context=ctx)

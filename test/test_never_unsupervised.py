@@ -103,7 +103,7 @@ def test_bringup_ended_mid_motion_ends_every_node_with_the_drives_stopped(ros, t
     node = rclpy.create_node(f'probe_{tag}', context=ros.context)
     executor = SingleThreadedExecutor(context=ros.context)
     executor.add_node(node)
-    BackgroundSpinner(executor, 'probe-executor').start()
+    spinner = BackgroundSpinner(executor, 'probe-executor').start()
     joints: list = []
     node.create_subscription(JointState, topics.JOINT_STATES, joints.append, 10)
     try:
@@ -136,6 +136,7 @@ def test_bringup_ended_mid_motion_ends_every_node_with_the_drives_stopped(ros, t
         _wait(lambda: not _node_pids(tag), NODES_GONE_S, 'every node process gone')
         assert time.monotonic() - t_end <= NODES_GONE_S
     finally:
+        spinner.stop()                        # no spin on a context being shut down
         executor.shutdown()
         node.destroy_node()
         if proc.poll() is None:

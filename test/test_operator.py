@@ -330,7 +330,7 @@ def operator_stack(device_file: Path, extra_args: Sequence[str] = ()) -> Iterato
     node = rclpy.create_node('operator_probe', context=ctx)
     executor = SingleThreadedExecutor(context=ctx)
     executor.add_node(node)
-    BackgroundSpinner(executor, 'probe-executor').start()
+    spinner = BackgroundSpinner(executor, 'probe-executor').start()
     probe = Probe(node)
     op = Operator(group, node, probe, Device(device_file))
     try:
@@ -349,6 +349,7 @@ def operator_stack(device_file: Path, extra_args: Sequence[str] = ()) -> Iterato
         yield op
     finally:
         # this process's participant goes first (see test_e2e.process_bring_up)
+        spinner.stop()                        # no spin on a context being shut down
         executor.shutdown()
         node.destroy_node()
         rclpy.shutdown(context=ctx)
