@@ -69,6 +69,8 @@ SLOW_CALLS = frozenset({'boot', 'enable', 'disable', 'halt', 'home', 'recover', 
                         'take_up', 'shutdown'})
 #: calls of a stream (at its rate) and reads that change nothing: answered without a snapshot
 NO_SNAPSHOT = frozenset({'set_targets', 'set_interaction_goal', 'status', 'set_rest_pose'})
+#: longest a log record waits for the link before it goes to stderr instead (s)
+LOG_SEND_WAIT_S = 0.05
 #: longest the child may take to start (interpreter, numpy, canopen, the simulator) (s)
 START_TIMEOUT_S = 60.0
 #: longest the child may take to end once told (s); then it is killed
@@ -605,14 +607,19 @@ class _Child:
     def send(self, msg: Any) -> None:
         self.try_send(msg)
 
-    def try_send(self, msg: Any) -> bool:
+    def try_send(self, msg: Any, *, wait: float = -1) -> bool:
+        """Send ``msg``; ``False`` if the parent is gone or (``wait`` >= 0) the link stayed
+        busy that long: a parent that stopped reading never blocks the caller for longer."""
+        if not self.send_lock.acquire(timeout=wait):
+            return False
         try:
-            with self.send_lock:
-                self.conn.send(msg)
+            self.conn.send(msg)
             return True
         except (OSError, ValueError):
             self.stop.set()           # the parent is gone
             return False
+        finally:
+            self.send_lock.release()
 
     def send_with_snapshot(self, make: Callable[[Snapshot | None], Any]) -> None:
         """Take a snapshot and send it (inside ``make``'s message) under one lock: the parent
@@ -839,7 +846,9 @@ class _ForwardLog(logging.Handler):
             text = self.format(record)
         except Exception:  # noqa: BLE001
             text = str(record.msg)
-        if self.child.stop.is_set() or not self.child.try_send(('log', record.name, record.levelno, text)):
+        # the SYNC thread logs too: it never waits on a link the parent stopped reading
+        if self.child.stop.is_set() or not self.child.try_send(('log', record.name, record.levelno, text),
+                                                               wait=LOG_SEND_WAIT_S):
             # the parent is gone (or going): the inherited stderr is what is left
             print(f'[{record.levelname}] [{record.name}] {text}', file=sys.stderr, flush=True)
 
