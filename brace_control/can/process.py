@@ -10,11 +10,12 @@ done the way that works under Python's lock.
 
 Parent (the node) and child talk over one socket pair (:mod:`multiprocessing.connection`):
 
-* **commands in:** ``(id, target, name, args, kwargs)``: a method of the master (``target``
-  ``'master'``) or of the simulated brace (``'sim'``), or an attribute read (``name``
-  starting ``'get:'``). The 402 transitions, homing, reliefs and shutdown (up to seconds)
-  each run in a thread of their own; everything else (a trajectory, a setpoint, a stop)
-  inline, so a stream never queues behind a service.
+* **commands in:** ``('call', id, target, name, pickled (args, kwargs))``: a method of the
+  master (``target`` ``'master'``) or of the simulated brace (``'sim'``) by attribute path,
+  or an attribute read (``name`` starting ``'peek:'``) or write (``'set:'``); ``'cast'``
+  the same without an answer (a stream's samples). The 402 transitions, homing, reliefs and
+  shutdown (up to seconds) each run in a thread of their own; everything else (a
+  trajectory, a setpoint, a stop) inline, so a stream never queues behind a service.
 * **samples and events out:** a :class:`Snapshot` after every command (in its reply) and at
   ``can.joint_state_rate_hz`` (what the node publishes, what its checks read), each built and
   sent under one lock, so they arrive in the order they were taken and every execution event
@@ -68,7 +69,7 @@ log = logging.getLogger('brace_control.can.process')
 SLOW_CALLS = frozenset({'boot', 'enable', 'disable', 'halt', 'home', 'recover', 'relieve',
                         'take_up', 'shutdown'})
 #: calls of a stream (at its rate) and reads that change nothing: answered without a snapshot
-NO_SNAPSHOT = frozenset({'set_targets', 'set_interaction_goal', 'status', 'set_rest_pose'})
+NO_SNAPSHOT = frozenset({'set_targets', 'set_interaction_goal', 'status'})
 #: longest a log record waits for the link before it goes to stderr instead (s)
 LOG_SEND_WAIT_S = 0.05
 #: longest the child may take to start (interpreter, numpy, canopen, the simulator) (s)
@@ -112,18 +113,20 @@ def portable(value: Any) -> Any:
 def snapshot_of(master: Any, sim: Any = None) -> Snapshot:
     """The master's (and the simulator's) state now; drains the master's execution events."""
     fb = master.feedback()
-    truth = None
-    if sim is not None:
-        # the truth of the SYNC the feedback describes (same stamp): a comparison with the
-        # estimate pairs the same instant, not two SYNCs ms apart
-        wall = fb.wall
-        truth = sim.truth_at(wall) if wall and time.time() - wall < 0.1 else sim.truth()
+    truth = None if sim is None else sync_truth(sim, fb.wall)
     return Snapshot(state=master.state, homed=master.homed, taking_up=master.taking_up,
                     relieved=master.relieved, faults=portable(master.faults),
                     latched=master.latched, fault_summary=master.fault_summary(),
                     execution=master.execution, command=master.command,
                     interacting=master.interacting, last_pose=master.last_pose, feedback=fb,
                     events=tuple(master.execution_events()), truth=truth)
+
+
+def sync_truth(sim: Any, wall: float) -> Any:
+    """The simulator's truth of the SYNC sent at ``wall`` (wall clock, s; a measurement's
+    stamp): a comparison with the estimate pairs the same instant, not two SYNCs ms apart.
+    No recent SYNC (``wall`` 0 or older than 0.1 s): the newest truth."""
+    return sim.truth_at(wall) if wall and time.time() - wall < 0.1 else sim.truth()
 
 
 def wrench_capacity_context(master: Any, mechanism: Any, max_force: float) -> Callable[[int, float], str]:
@@ -462,10 +465,6 @@ class MasterProcess:
         return events
 
     @property
-    def boot_report(self) -> tuple[str, ...]:
-        return tuple(self.call('master', 'get:boot_report'))
-
-    @property
     def ended(self) -> str | None:
         """Why the child is gone (``None`` while it runs)."""
         return self._ended
@@ -646,8 +645,8 @@ class _Child:
         try:
             from ..config import as_device_config
             cfg = as_device_config(cfg)
-            got = set_scheduling(int(cfg['can']['cycle_priority']), int(cfg['can']['cycle_nice']))
-            if got.startswith('SCHED_FIFO') and not config.thread_priority:
+            set_scheduling(int(cfg['can']['cycle_priority']), int(cfg['can']['cycle_nice']))
+            if os.sched_getscheduler(0) == os.SCHED_FIFO and not config.thread_priority:
                 # the SYNC thread one above its process: on waking it preempts the
                 # simulator's threads (which then hold the interpreter lock at most
                 # gil_switch_interval_us longer) rather than queueing behind them
@@ -684,27 +683,32 @@ class _Child:
                 break
             self.send_with_snapshot(lambda snap: ('snap', snap))
 
+    def resolve(self, target: str, path: str) -> tuple[Any, str]:
+        """The object holding the last attribute of ``path`` (dotted) on ``target``, and
+        that attribute's name."""
+        obj = self.master if target == 'master' else self.sim
+        if obj is None:
+            raise DriverError(f'no {target} in the control cycle process')
+        *parents, last = path.split('.')
+        for part in parents:
+            obj = getattr(obj, part)
+        return obj, last
+
     def run_cast(self, target: str, name: str, payload: bytes) -> None:
         """A call nobody waits for: its error is logged."""
         try:
             args, kwargs = pickle.loads(payload)
-            getattr(self.master if target == 'master' else self.sim, name)(*args, **kwargs)
+            obj, last = self.resolve(target, name)
+            getattr(obj, last)(*args, **kwargs)
         except Exception as exc:  # noqa: BLE001 - nobody to raise it to
             log.warning('%s.%s ignored: %s', target, name, exc)
 
     def run_call(self, ident: int, target: str, name: str, payload: bytes) -> None:
         try:
             args, kwargs = pickle.loads(payload)
-            obj = self.master if target == 'master' else self.sim
-            if obj is None:
-                raise DriverError(f'no {target} in the control cycle process')
             op, _, path = name.rpartition(':')
-            *parents, last = path.split('.')
-            for part in parents:
-                obj = getattr(obj, part)
-            if op == 'get':
-                value = getattr(obj, last)
-            elif op == 'peek':
+            obj, last = self.resolve(target, path)
+            if op == 'peek':
                 value = getattr(obj, last)
                 value = ('value', value) if _plain(value) else ('object', None)
             elif op == 'set':
@@ -724,7 +728,7 @@ class _Child:
             # cyclic collector's passes, which hold the GIL (bench/RESULTS.md "Host stalls")
             gc.freeze()
             self.frozen = True
-        if name in NO_SNAPSHOT or name.startswith(('get:', 'peek:')):
+        if name in NO_SNAPSHOT or name.startswith(('peek:', 'set:')):
             self.send(('reply', ident, ok, value, None))
         else:
             self.send_with_snapshot(lambda snap: ('reply', ident, ok, value, snap))

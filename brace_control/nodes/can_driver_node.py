@@ -147,7 +147,7 @@ from trajectory_msgs.msg import JointTrajectory
 
 from ..can import (ActuatorTrajectory, BraceMaster, DriverError, DriverInitializationError,
                    MasterConfig, MasterState, State402, TrajectoryInvalid)
-from ..can.process import MasterProcess, label_threads, wrench_capacity_context
+from ..can.process import MasterProcess, label_threads, sync_truth, wrench_capacity_context
 from ..config import ConfigError
 from . import topics
 from .msgs import (MalformedMessage, joint_knots_from_msg, joint_state, joint_state_arrays,
@@ -502,8 +502,7 @@ class CanDriverNode(LifecycleNode):
                 return                    # shutting down / closed: the publishers are going
             # the truth of the SYNC the last /brace/joint_states described (same stamp): a
             # comparison with the estimate pairs the same instant, not two SYNCs ms apart
-            wall = self._last_js_wall
-            truth = sim.truth_at(wall) if wall and time.time() - wall < 0.1 else sim.truth()
+            truth = sync_truth(sim, self._last_js_wall)
             stamp = ns_to_stamp(round(truth.stamp * 1e9) if truth.stamp else
                                 self.get_clock().now().nanoseconds)
             js_pub, pose_pub, wrench_pub, body_pub = self._truth_pubs
