@@ -25,9 +25,14 @@ $(VENV)/.installed: requirements.txt setup.py setup.cfg package.xml
 demo: venv
 	$(PY) -m brace_control.demo --device $(DEVICE) --mode $(MODE) --out demo_output
 
-# pytest exits 5 when it collected no test: that is a failure here, said out loud
+# pytest exits 5 when it collected no test: that is a failure here, said out loud.
+# Two pytest-xdist workers, a whole file each at a time (--dist loadfile: a module's stack
+# fixtures stay on one worker), each on its own ROS domain (test/conftest.py); the control
+# cycle runs in its own real-time process (issue 27), so two stacks share two cores.
+# TEST_WORKERS=0 runs everything in one process; timings: bench/RESULTS.md "Test suite time".
+TEST_WORKERS ?= 2
 test: venv
-	$(PY) -m pytest -q; rc=$$?; \
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile; rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "make test: pytest collected no tests" >&2; fi; exit $$rc
 
 # every benchmark script; numbers and the commands that made them: bench/RESULTS.md

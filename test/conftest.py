@@ -8,9 +8,24 @@ import os
 import pytest
 
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-# Our own domain per test run so two runs on one machine never cross-talk
-# (1..200; Fast DDS domain ids stay below 233).
-os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 200))
+
+
+def _domain_id() -> str:
+    """Our own ROS domain per test run, so two runs on one machine never cross-talk (1..200;
+    Fast DDS domain ids stay below 233), and one per pytest-xdist worker: the workers inherit
+    the environment of the run's first process, and two stacks on one domain answer each
+    other's probes (a worker's node "up" because the other worker's node of that name is).
+    A domain the user set is the first worker's; the others count on from it."""
+    worker = os.environ.get('PYTEST_XDIST_WORKER', '')      # 'gw0', 'gw1', ...
+    index = int(worker[2:]) if worker[2:].isdigit() else 0
+    base = os.environ.get('BRACE_TEST_DOMAIN_BASE')
+    if base is None:
+        base = os.environ.get('ROS_DOMAIN_ID') or str(1 + os.getpid() % 200)
+        os.environ['BRACE_TEST_DOMAIN_BASE'] = base            # the workers' common base
+    return str((int(base) + index) % 233)
+
+
+os.environ['ROS_DOMAIN_ID'] = _domain_id()
 os.environ.setdefault('MPLBACKEND', 'Agg')
 os.environ.setdefault('RCUTILS_LOGGING_BUFFERED_STREAM', '1')
 
