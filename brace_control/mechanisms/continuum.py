@@ -73,8 +73,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.optimize import brentq, fsolve
-from scipy.special import ellipeinc, ellipkinc
 
 from .base import (MechanismBase, Statics, UnreachablePose, as_actuator_names, as_poses, as_positive, as_range,
                    as_vector, check_limits, check_section, config_errors, section_kwargs, within_limits)
@@ -96,6 +94,7 @@ def bar_end(k: float | np.ndarray, psi: float, length: float, ei: float
     ``(|cos(psi/2)|, 1)``; vectorised over ``k``. At ``k = k_min`` the bar is straight
     (``x' = L``, ``y' = 0``, ``R = 0``).
     """
+    from scipy.special import ellipeinc, ellipkinc       # scipy on first use (every node's start)
     kk = np.asarray(k, dtype=float)
     m = kk * kk
     c2 = math.cos(0.5 * psi)
@@ -126,6 +125,7 @@ def _bar_end_scalar(k: float, psi: float, length: float, ei: float) -> tuple[flo
     elliptic integrals themselves); :func:`bar_end` stays the vectorised reference and the
     tests check that both agree.
     """
+    from scipy.special import ellipeinc, ellipkinc
     m = k * k
     c2 = math.cos(0.5 * psi)
     phi1 = math.asin(min(1.0, max(-1.0, c2 / k)))
@@ -169,6 +169,7 @@ def solve_bar(a: float, b: float, length: float, ei: float, *, psi0: float = PSI
         xp, yp, _ = bar_end(k, psi, length, ei)
         return np.array([float(xp) - a, float(yp) - b]) / length
 
+    from scipy.optimize import fsolve
     sol, info, ier, msg = fsolve(res, [psi0, k0], full_output=True, xtol=1e-13)
     if ier != 1 or np.max(np.abs(res(sol))) > 1e-10:
         raise UnreachablePose(f'bar end ({a:.5f}, {b:.5f}) m: no mode-1 elastica found ({msg.strip()})')
@@ -314,6 +315,7 @@ class Continuum2(MechanismBase):
 
         g_lo, g_hi = g(k_lo), g(k_hi)
         if g_lo * g_hi < 0.0:
+            from scipy.optimize import brentq
             k = brentq(g, k_lo, k_hi, xtol=1e-16, rtol=1e-15, maxiter=100)
         else:                                   # target on a table node (or the branch end)
             k = k_lo if abs(g_lo) <= abs(g_hi) else k_hi

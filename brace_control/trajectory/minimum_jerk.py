@@ -18,7 +18,6 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import minimize, minimize_scalar
 
 from .base import (ArrayLike, PiecewisePolynomial, TrajectoryError, as_points,
                    quintic_coefficients)
@@ -208,6 +207,7 @@ class ViaPointMinimumJerk(PiecewisePolynomial):
     def _optimal_via_times(cls, pts: np.ndarray, T: float, v0: np.ndarray,
                            a0: np.ndarray) -> np.ndarray:
         """Via times minimising the jerk cost (2.1) for the fixed total time ``T``."""
+        from scipy.optimize import minimize, minimize_scalar   # scipy on first use (every node's start)
         k = pts.shape[0] - 2
         eps = 1e-4
         if k == 1:

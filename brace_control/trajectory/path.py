@@ -27,7 +27,6 @@ import weakref
 from typing import Any
 
 import numpy as np
-from scipy.interpolate import CubicSpline
 
 from .base import Trajectory, TrajectoryError
 
@@ -82,6 +81,7 @@ class CurvePath:
         cells = h / 6.0 * (speed[0:-1:2] + 4.0 * speed[1::2] + speed[2::2])
         knots = th[::2]
         s = np.concatenate([[0.0], np.cumsum(cells)])
+        from scipy.interpolate import CubicSpline     # scipy on first use (every node's start)
         # s(theta) interpolates the integral; its derivative is clamped to the true speed at
         # both ends (s' = |P'|), so s_dot / s' and the curve's tangent agree to the grid's accuracy
         self._s = CubicSpline(knots, s, bc_type=((1, speed[0]), (1, speed[-1])))
