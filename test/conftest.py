@@ -75,7 +75,28 @@ def _clean_zombie_shm() -> str:
 
 
 def pytest_sessionstart(session):
-    session.config._fastdds_shm_clean = _clean_zombie_shm()
+    if 'PYTEST_XDIST_WORKER' not in os.environ:     # once per run, before any worker's DDS
+        session.config._fastdds_shm_clean = _clean_zombie_shm()
+
+
+#: per file, the seconds it took in a measured run (``make test``'s two workers, from pytest's
+#: JUnit XML: bench/RESULTS.md "Test suite time"); a file not listed counts as UNTIMED_FILE_S
+FILE_TIMES = os.path.join(os.path.dirname(__file__), 'file_times.json')
+UNTIMED_FILE_S = 30.0
+
+
+def pytest_collection_modifyitems(session, config, items):
+    """The longest files first, each file's tests in their own order: pytest-xdist's
+    ``--dist loadfile`` hands the files out in this order, so the two workers end within
+    a short file of each other instead of one running a long file alone at the end. The
+    order changes nothing else (every test sets up its own state, or its module's)."""
+    import json
+    try:
+        with open(FILE_TIMES) as f:
+            times = json.load(f)
+    except (OSError, ValueError):
+        return
+    items.sort(key=lambda item: -float(times.get(item.path.name, UNTIMED_FILE_S)))
 
 
 def pytest_report_header(config):
