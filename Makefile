@@ -29,10 +29,12 @@ demo: venv
 # Two pytest-xdist workers, a whole file each at a time (--dist loadfile: a module's stack
 # fixtures stay on one worker), each on its own ROS domain (test/conftest.py); the control
 # cycle runs in its own real-time process (issue 27), so two stacks share two cores.
+# --no-loadscope-reorder: the files go out in test/conftest.py's order, the longest first
+# (xdist's own order, the most tests first, left the few-test bring-up files for the end).
 # TEST_WORKERS=0 runs everything in one process; timings: bench/RESULTS.md "Test suite time".
 TEST_WORKERS ?= 2
 test: venv
-	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile; rc=$$?; \
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder; rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "make test: pytest collected no tests" >&2; fi; exit $$rc
 
 # every benchmark script; numbers and the commands that made them: bench/RESULTS.md

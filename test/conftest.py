@@ -137,14 +137,23 @@ def _rcl_logging_stays_up():
     3.2 (seen in CI: ``DomainParticipant::set_listener`` spinning in ``destroy_participant``,
     holding the GIL, while an ``on_writer_discovery`` callback waits for its mutex; gdb).
     Tests that make contexts of their own still delete participants.
+
+    The anchor is not destroyed at the session's end either: destroying its publishers
+    deadlocked a worker once (``DataWriterImpl`` waiting in ``unregister_timer``, py-spy:
+    this fixture's teardown, right after a bring-up's nodes had left), the same Fast DDS
+    race. The process's exit takes both down; a pytest-xdist worker that does not end is
+    killed by xdist 10 s after its last result.
     """
     import rclpy
     from rclpy.context import Context
     keep = Context()
     rclpy.init(context=keep)
-    anchor = rclpy.create_node('test_session_anchor', context=keep)
+    _SESSION_DDS.append((keep, rclpy.create_node('test_session_anchor', context=keep)))
     yield keep
-    anchor.destroy_node()
+
+
+#: the session's context and anchor node, alive until the process exits
+_SESSION_DDS: list = []
 
 
 #: s: the most one test (setup, call, teardown) may take before the run is ended with every

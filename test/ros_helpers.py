@@ -83,6 +83,7 @@ class Ros:
         self.context = context
         self.executor = SingleThreadedExecutor(context=self.context)
         self.nodes: list[Node] = []
+        self._answer_clients: dict[tuple[Node, str], Any] = {}
 
     def add(self, node: Node) -> Node:
         self.executor.add_node(node)
@@ -134,21 +135,30 @@ class Ros:
 
         The graph alone cannot tell: this context's one DDS participant lives for the whole
         session, so a node whose process was killed stays in ``get_node_names()`` until its
-        participant's lease runs out (Fast DDS: 20 s)."""
+        participant's lease runs out (Fast DDS: 20 s).
+
+        One client per probe and name, kept until the probe goes (:meth:`close`): asked again,
+        it is matched already, and the session's participant does not make and destroy a
+        reader and a writer per try (an endpoint destroyed while a remote participant's lease
+        expires is the Fast DDS deadlock of eProsima/Fast-DDS#6502)."""
         from rcl_interfaces.srv import ListParameters
-        client = probe.create_client(ListParameters, f'/{name.lstrip("/")}/list_parameters')
-        try:
-            deadline = time.monotonic() + timeout
-            if not client.wait_for_service(timeout_sec=0.0):
-                self.spin_until(lambda: client.service_is_ready() or time.monotonic() > deadline,
-                                timeout + 1.0)
-            if not client.service_is_ready():
-                return False
-            future = client.call_async(ListParameters.Request(depth=1))
-            self.spin_until(lambda: future.done() or time.monotonic() > deadline, timeout + 1.0)
-            return future.done() and future.exception() is None
-        finally:
-            probe.destroy_client(client)
+        key = (probe, name.lstrip('/'))
+        client = self._answer_clients.get(key)
+        if client is None:
+            client = probe.create_client(ListParameters, f'/{key[1]}/list_parameters')
+            self._answer_clients[key] = client
+        deadline = time.monotonic() + timeout
+        if not client.wait_for_service(timeout_sec=0.0):
+            self.spin_until(lambda: client.service_is_ready() or time.monotonic() > deadline,
+                            timeout + 1.0)
+        if not client.service_is_ready():
+            return False
+        future = client.call_async(ListParameters.Request(depth=1))
+        self.spin_until(lambda: future.done() or time.monotonic() > deadline, timeout + 1.0)
+        if not future.done():
+            client.remove_pending_request(future)
+            return False
+        return future.exception() is None
 
     def wait_node_answers(self, probe: Node, name: str, timeout: float,
                           stop: Callable[[], bool] = lambda: False) -> None:
