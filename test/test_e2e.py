@@ -25,10 +25,8 @@ Deliberate settings, all as ROS parameters on the command line:
 * ``trajectory.fitts_a`` 1 s (Fitts' law intercept; 0.2 s in the YAML): motions of
   1.2-1.5 s instead of 0.5 s. Near the lumbar brace's theta = 0 singularity microns of
   actuator lag are millimetres of pose (at theta = 5 deg, 10 um on a2 = 3.4 mm in x);
-* ``trajectory.planning_budget`` 5 s (1 s in the YAML): the budget is wall time, and with
-  make test's two workers on two cores a trainer's path plan once took 1.66 s and a
-  shoulder's 1.13 s (rejected: "planning took ..."); no test here checks the budget, and
-  a goal still reaches the truth or fails as before.
+* ``ros_helpers.BUSY_HOST_ARGS``: the trajectory node's planning budget and driver report
+  time-out, wall-clock deadlines no test here checks, widened for a busy host.
 """
 from __future__ import annotations
 
@@ -61,7 +59,7 @@ from brace_control.demo import prepare_config
 from brace_control.exercise import Goal, write_goal_bag
 from brace_control.nodes import topics
 from brace_control.nodes.msgs import joint_knots_from_msg, pose_msg, stamp_to_ns, status_values
-from ros_helpers import LUMBAR_YAML, RELIABLE_10
+from ros_helpers import BUSY_HOST_ARGS, LUMBAR_YAML, RELIABLE_10
 
 pytestmark = [pytest.mark.ros, pytest.mark.e2e, pytest.mark.slow]
 
@@ -163,7 +161,7 @@ def device_file(tmp_path_factory) -> Path:
 def _extra_args() -> list[str]:
     # the truth at 100 Hz so that a short force spike cannot fall between two samples
     return ['-p', f'can.channel:=e2e{next(_channels)}', '-p', 'trajectory.fitts_a:=1.0',
-            '-p', 'sim.truth_rate_hz:=100.0', '-p', 'trajectory.planning_budget:=5.0']
+            '-p', 'sim.truth_rate_hz:=100.0', *BUSY_HOST_ARGS]
 
 
 # ----------------------------------------------------------------------------- probe

@@ -25,7 +25,7 @@ from geometry_msgs.msg import PoseStamped, WrenchStamped
 from brace_control.bringup import BringUp
 from brace_control.nodes import topics
 from brace_control.nodes.msgs import pose_msg, status_values
-from ros_helpers import home_and_enable, stack_in_process, wait_until as wait
+from ros_helpers import BUSY_HOST_ARGS, home_and_enable, stack_in_process, wait_until as wait
 from seed001 import leg_lengths as legs, leg_matrix
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -172,7 +172,7 @@ class Truth:
 def stack(tmp_path_factory):
     # the test records the executor's command at every SYNC: the cycle runs in this process
     extra = ['-p', f'can.channel:=inter{next(_channels)}', '-p', 'can.sync_spin_us:=0',
-             '-p', 'sim.truth_rate_hz:=100.0', '-p', 'can.cycle_process:=false']
+             '-p', 'sim.truth_rate_hz:=100.0', '-p', 'can.cycle_process:=false', *BUSY_HOST_ARGS]
     with stack_in_process(LUMBAR, tmp_path_factory.mktemp('device'), extra) as b:
         truth = Truth(b.helper)
         home_and_enable(b)

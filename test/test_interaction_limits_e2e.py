@@ -43,7 +43,7 @@ from brace_control.bringup import BringUp
 from brace_control.nodes import topics
 from brace_control.nodes.msgs import pose_msg, status_values
 from brace_control.sim.brace import REST_STREAM_CATCH_UP
-from ros_helpers import home_and_enable, stack_in_process, wait_until as wait
+from ros_helpers import BUSY_HOST_ARGS, home_and_enable, stack_in_process, wait_until as wait
 from seed001 import leg_lengths as legs, leg_matrix
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -186,7 +186,7 @@ def stack(tmp_path_factory):
     extra = ['-p', f'can.channel:=limits{next(_channels)}', '-p', 'can.sync_spin_us:=0',
              '-p', 'sim.truth_rate_hz:=100.0', '-p', 'can.cycle_process:=false',
              '-p', f'safety.force_limit:={FORCE_LIMIT_N}', '-p', f'safety.soft_force_limit:={SOFT_FORCE_LIMIT_N}',
-             '-p', f'safety.release_force:={0.4 * SOFT_FORCE_LIMIT_N}']
+             '-p', f'safety.release_force:={0.4 * SOFT_FORCE_LIMIT_N}', *BUSY_HOST_ARGS]
     with stack_in_process(LUMBAR, tmp_path_factory.mktemp('device'), extra) as b:
         rec = Record(b.helper)
         home_and_enable(b)

@@ -28,7 +28,7 @@ from geometry_msgs.msg import PoseStamped, WrenchStamped
 
 from brace_control.nodes import topics
 from brace_control.nodes.msgs import status_values
-from ros_helpers import home_and_enable, stack_in_process, wait_until as wait
+from ros_helpers import BUSY_HOST_ARGS, home_and_enable, stack_in_process, wait_until as wait
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -79,7 +79,7 @@ class Truth:
 
 @pytest.fixture(scope='module')
 def stack(tmp_path_factory):
-    extra = ['-p', f'can.channel:=trainer_inter{next(_channels)}', '-p', 'sim.truth_rate_hz:=100.0']
+    extra = ['-p', f'can.channel:=trainer_inter{next(_channels)}', '-p', 'sim.truth_rate_hz:=100.0', *BUSY_HOST_ARGS]
     with stack_in_process(TRAINER, tmp_path_factory.mktemp('device'), extra) as b:
         truth = Truth(b.helper)
         home_and_enable(b)
