@@ -175,6 +175,11 @@ SCHEMA: dict[str, Param] = {
                                      'rejected)', (1, 1000000)),
     'trajectory.planning_budget': _ro(1.0, 'longest a goal may take to plan; longer: rejected',
                                       (0.01, 60.0), 's'),
+    'trajectory.plan_lookahead': _ro(0.15, 'a plan takes over this long after its planning began: '
+                                     'planning, IK and two DDS hops must fit in it, else the '
+                                     'driver blends a late start in, or rejects it beyond '
+                                     'safety.path_tolerance (raise it on a slow or busy host)',
+                                     (0.02, 5.0), 's'),
     # CAN
     'can.interface': _ro('virtual', 'python-can interface (virtual, socketcan, ...)'),
     'can.channel': _ro('brace0', 'python-can channel'),

@@ -16,7 +16,8 @@ Topics and services (all in the device's ``base_frame``):
   base frame; a pose's own frame_id must be the base frame too, or empty.
 * ``/brace/pose_trajectory`` (``trajectory_msgs/MultiDOFJointTrajectory``): each planned
   motion, once, whole (pose knots, :mod:`.msgs`), ``header.stamp`` = when it takes over
-  (``PLAN_LOOKAHEAD_S`` after planning began; the driver samples it in its SYNC loop).
+  (``trajectory.plan_lookahead``, 0.15 s by default, after planning began; the driver
+  samples it in its SYNC loop).
   ``~/cancel`` publishes an empty one with the running motion's stamp: the driver then
   decelerates along the path and holds. The node runs no periodic timer while idle.
 * ``/brace/goal_status`` (``diagnostic_msgs/DiagnosticStatus``, reliable, depth 200): one
@@ -41,7 +42,7 @@ reason), when the platform did not follow (by how much), or when the stack shut 
 Goals arriving faster than they can be planned coalesce: the newest is planned, each one it
 superseded is reported ``cancelled: superseded by goal N``. The goal subscriptions keep all
 samples (no depth can drop one). A new goal preempts the running one from the state the
-running motion has ``PLAN_LOOKAHEAD_S`` after the goal arrived (continuous position,
+running motion has ``trajectory.plan_lookahead`` after the goal arrived (continuous position,
 velocity, acceleration). All math is in :mod:`brace_control.trajectory`.
 """
 from __future__ import annotations
@@ -76,7 +77,8 @@ from .runner import run_node
 __all__ = ['TrajectoryNode', 'main']
 
 #: s from the start of planning to the motion taking over (planning, IK and two DDS hops
-#: must fit in it for an exact splice; a late motion is blended in by the driver)
+#: must fit in it for an exact splice; a late motion is blended in by the driver): the
+#: default of ``trajectory.plan_lookahead``
 PLAN_LOOKAHEAD_S = 0.15
 #: s a goal waits for a cancelled motion to finish braking before it is planned
 STOPPING_WAIT_S = 3.0
@@ -103,6 +105,7 @@ class TrajectoryNode(Node):
         self.profile = Profile(traj['profile'])
         self.max_path_poses = int(traj['max_path_poses'])
         self.planning_budget = float(traj['planning_budget'])
+        self.plan_lookahead = float(traj['plan_lookahead'])
         kind = pose_kind(self.mechanism)
         try:
             limits = Limits.from_config(self.cfg, dof=self.mechanism.dof)
@@ -118,7 +121,7 @@ class TrajectoryNode(Node):
             self.mechanism, limits, profile=self.profile,
             fitts=FittsLaw(a=traj['fitts_a'], b=traj['fitts_b'], w=traj['fitts_w']),
             fitts_axes=(0, 1) if kind in ('planar', 'xy') else None,
-            lookahead=PLAN_LOOKAHEAD_S, pose_tolerance=tolerance,
+            lookahead=self.plan_lookahead, pose_tolerance=tolerance,
             settle_time=float(safety['settle_time']), report_timeout=float(safety['report_timeout']),
             # the success margin for what the encoders cannot resolve (TrajectoryRunner)
             actuator_resolution=1.0 / scaling_from_config(self.cfg).counts_per_unit)
