@@ -31,11 +31,16 @@ demo: venv
 # cycle runs in its own real-time process (issue 27), so two stacks share two cores.
 # --no-loadscope-reorder: the files go out in test/conftest.py's order, the longest first
 # (xdist's own order, the most tests first, left the few-test bring-up files for the end).
+# Then the files marked 'serial' (the whole stack in the test's own process), alone.
 # TEST_WORKERS=0 runs everything in one process; timings: bench/RESULTS.md "Test suite time".
 TEST_WORKERS ?= 2
 test: venv
-	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder; rc=$$?; \
-	if [ $$rc -eq 5 ]; then echo "make test: pytest collected no tests" >&2; fi; exit $$rc
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder -m "not serial"; rc=$$?; \
+	$(PY) -m pytest -q -m serial; rc2=$$?; \
+	for r in $$rc $$rc2; do \
+	  if [ $$r -eq 5 ]; then echo "make test: pytest collected no tests" >&2; fi; \
+	  if [ $$r -ne 0 ]; then exit $$r; fi; \
+	done
 
 # every benchmark script; numbers and the commands that made them: bench/RESULTS.md
 bench: venv

@@ -28,6 +28,11 @@ from brace_control.nodes.msgs import pose_msg, status_values
 from ros_helpers import BUSY_HOST_ARGS, home_and_enable, stack_in_process, wait_until as wait
 from seed001 import leg_lengths as legs, leg_matrix
 
+# make test runs this file after the parallel part, alone (setup.cfg marker 'serial'): the
+# whole stack in this process, its SYNC cycle at normal priority beside the test's threads,
+# stretched 3.4x beside another worker's stack
+pytestmark = pytest.mark.serial
+
 ROOT = Path(__file__).resolve().parent.parent
 LUMBAR = ROOT / 'config' / 'lumbar_brace.yaml'
 PARAMS = yaml.safe_load(LUMBAR.read_text())['/**']['ros__parameters']
