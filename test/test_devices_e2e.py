@@ -130,7 +130,9 @@ def _scenario(device_file: Path, node, probe, tmp_path: Path) -> None:
     assert np.all((lo <= want) & (want <= hi))
 
     bag = write_goal_bag(tmp_path / f'goals{next(_channels)}',
-                         [Goal(0.2, goals[0], 'first'), Goal(2.8, goals[1], 'second')],
+                         # the second 4 s in: the first (up to 1.5 s of motion, after 1.7 s of
+                         # planning on a busy host and the 0.4 s lookahead) has ended by then
+                         [Goal(0.2, goals[0], 'first'), Goal(4.0, goals[1], 'second')],
                          frame_id=str(cfg.get('base_frame')), storage='sqlite3', mechanism=mech)
     replay(node, bag, wait_subscribers=1)
     probe.wait(lambda: [e['state'] for e in probe.terminal()] == ['succeeded'] * 2, 30,
