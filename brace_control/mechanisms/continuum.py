@@ -86,6 +86,27 @@ PSI_TENSION = math.radians(-45.0)
 _SQRT2 = math.sqrt(2.0)
 
 
+
+def _load_elliptic() -> None:
+    """Bind scipy's incomplete elliptic integrals in place of the two stubs below: scipy is
+    imported on first use, not with the package (every node process's start), and the
+    integrals' callers (:func:`_bar_end_scalar`, inside root finds) pay nothing afterwards."""
+    global ellipkinc, ellipeinc
+    from scipy.special import ellipeinc as e, ellipkinc as k
+    ellipkinc, ellipeinc = k, e
+
+
+def ellipkinc(phi: Any, m: Any) -> Any:
+    """``scipy.special.ellipkinc``: this stub replaces itself with it on the first call."""
+    _load_elliptic()
+    return ellipkinc(phi, m)
+
+
+def ellipeinc(phi: Any, m: Any) -> Any:
+    """``scipy.special.ellipeinc``: this stub replaces itself with it on the first call."""
+    _load_elliptic()
+    return ellipeinc(phi, m)
+
 def bar_end(k: float | np.ndarray, psi: float, length: float, ei: float
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """End ``(x', y')`` (m) of a mode-1 clamped-clamped bar and its end force ``R`` (N).
@@ -94,7 +115,6 @@ def bar_end(k: float | np.ndarray, psi: float, length: float, ei: float
     ``(|cos(psi/2)|, 1)``; vectorised over ``k``. At ``k = k_min`` the bar is straight
     (``x' = L``, ``y' = 0``, ``R = 0``).
     """
-    from scipy.special import ellipeinc, ellipkinc       # scipy on first use (every node's start)
     kk = np.asarray(k, dtype=float)
     m = kk * kk
     c2 = math.cos(0.5 * psi)
@@ -125,7 +145,6 @@ def _bar_end_scalar(k: float, psi: float, length: float, ei: float) -> tuple[flo
     elliptic integrals themselves); :func:`bar_end` stays the vectorised reference and the
     tests check that both agree.
     """
-    from scipy.special import ellipeinc, ellipkinc
     m = k * k
     c2 = math.cos(0.5 * psi)
     phi1 = math.asin(min(1.0, max(-1.0, c2 / k)))
