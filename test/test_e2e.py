@@ -25,8 +25,8 @@ Deliberate settings, all as ROS parameters on the command line:
 * ``trajectory.fitts_a`` 1 s (Fitts' law intercept; 0.2 s in the YAML): motions of
   1.2-1.5 s instead of 0.5 s. Near the lumbar brace's theta = 0 singularity microns of
   actuator lag are millimetres of pose (at theta = 5 deg, 10 um on a2 = 3.4 mm in x);
-* ``ros_helpers.BUSY_HOST_ARGS``: the trajectory node's planning budget and driver report
-  time-out, wall-clock deadlines no test here checks, widened for a busy host.
+* ``ros_helpers.BUSY_HOST_ARGS``: the trajectory node's planning budget, plan lookahead and
+  driver report time-out, wall-clock settings no test here checks, widened for a busy host.
 """
 from __future__ import annotations
 
