@@ -682,6 +682,50 @@ def test_a_stop_aborts_with_the_drivers_reason_and_the_hold_is_where_it_stopped(
     np.testing.assert_allclose(run.start_state(1.0).state.p, where, atol=1e-9)
 
 
+def test_a_refused_preemption_leaves_the_model_on_the_motion_that_goes_on(mech, limits):
+    """The driver refuses motion 2 (a splice too far from its command: "the running motion
+    continues") while motion 1 still runs: goal 2 is aborted with the driver's reason and
+    the next goal starts from motion 1's state at its takeover (the motion the driver goes
+    on with), not from where the refusal found the command. Motion 3, planned from motion 2
+    before its refusal came, is refused too; the model stays on motion 1."""
+    run = make_runner(mech, limits, Profile.MINIMUM_JERK)
+    _, plan1 = submit(run, '1', HOME + [0.02, 0.01, 0.05], 0.0, tag=1)
+    run.on_execution(1, 'started', '', None, now=0.1)
+    submit(run, '2', HOME + [-0.01, 0.0, 0.12], 0.2, tag=2)
+    submit(run, '3', HOME + [0.0, 0.01, 0.05], 0.25, tag=3)
+    at_refusal = plan1.trajectory.sample(0.3 - 0.1)[0]           # the command, still moving
+    why = 'its start is 9.1 mm from the command on joint 2; the running motion continues'
+    events = run.on_execution(2, 'rejected', why, lumbar_eq3(at_refusal), now=0.3)
+    assert events == []                                           # goal 2 was already cancelled by 3
+    events = run.on_execution(3, 'rejected', why, lumbar_eq3(at_refusal), now=0.36)
+    assert [(e.goal_id, e.state) for e in events] == [('3', GoalState.ABORTED)]
+    assert 'rejected' in events[0].reason and '9.1 mm' in events[0].reason
+    start = run.start_state(0.4)
+    assert start.source == 'motion'
+    p, v, a = plan1.trajectory.sample(0.5 - 0.1)                  # motion 1 at the takeover
+    assert np.linalg.norm(v) > 0
+    np.testing.assert_allclose(start.state.p, p, atol=1e-12)
+    np.testing.assert_allclose(start.state.v, v, atol=1e-12)
+    np.testing.assert_allclose(start.state.a, a, atol=1e-12)
+    # and motion 1's end is the hold once the driver says it finished
+    run.on_execution(1, 'finished', '', None, now=3.0)
+    np.testing.assert_allclose(run.start_state(3.1).state.p,
+                               plan1.trajectory.sample(plan1.trajectory.duration)[0], atol=1e-12)
+
+
+def test_a_refused_motion_from_rest_leaves_the_hold(mech, limits):
+    """Refused at rest, a motion leaves the hold where it was (the driver's check failed:
+    nothing moved)."""
+    run = make_runner(mech, limits, Profile.MINIMUM_JERK)
+    submit(run, '1', HOME + [0.0, 0.01, 0.05], 0.0, tag=4)
+    events = run.on_execution(4, 'rejected', 'joint 1 would reach 0.61, outside its range', (),
+                              now=0.05)
+    assert [(e.goal_id, e.state) for e in events] == [('1', GoalState.ABORTED)]
+    start = run.start_state(0.2)
+    assert start.source == 'hold'
+    np.testing.assert_allclose(start.state.p, HOME, atol=1e-9)
+
+
 def test_the_drives_leaving_enabled_abort_the_goal_at_once(mech, limits):
     run = make_runner(mech, limits, Profile.MINIMUM_JERK)
     submit(run, '1', HOME + [0.0, 0.01, 0.05], 0.0, tag=9)

@@ -75,9 +75,12 @@ SIM_BODY_POSE = '/brace/sim/body_pose'
 #: node takes every sample and coalesces them itself (the newest preempts, the others are
 #: reported superseded), so no history depth can overflow.
 GOAL_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
-#: Planned motions: reliable, a short history. Each is sent once and supersedes the one
-#: before, so a late subscriber needs none of the past ones (volatile).
-TRAJECTORY_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+#: Planned motions: reliable, keep all, volatile. Each is sent once; a late subscriber needs
+#: none of the past ones. None may be dropped on the way: a preempting motion is planned from
+#: the one before it (which the driver may not have started yet), so a chain of preemptions
+#: (a goal flood) that loses a link makes the driver refuse the next one, too far from its
+#: command (a keep-last 10 history did, with the ik node behind on a busy host).
+TRAJECTORY_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL,
                             reliability=ReliabilityPolicy.RELIABLE,
                             durability=DurabilityPolicy.VOLATILE)
 #: Setpoint streams: reliable, depth 10. A best-effort depth-1 stream would let DDS drop a

@@ -28,7 +28,9 @@ reports (docs/safety.md §12, §16):
 Its model of the command: the motion it last handed out (sampled on its own clock), or
 the pose the command holds. After the driver re-anchors (enable) or stops a motion early
 (cancel, halt, fault), the hold is the forward kinematics of the positions the driver
-reports, so the next motion starts exactly where the drives are commanded. While a
+reports, so the next motion starts exactly where the drives are commanded. A motion the
+driver refuses changes nothing there (the running motion goes on), so the model goes back
+to the motion or hold it was planned from, not to where the refusal found the command. While a
 cancelled motion is still braking the model is unknown (:attr:`settled` is False) and no
 new motion is planned from it. The same holds while the driver's in-cycle admittance
 (interaction) moves the command: a goal then waits until the mode has ended at rest and the
@@ -61,6 +63,9 @@ __all__ = ['GoalState', 'GoalRequest', 'GoalEvent', 'StartState', 'TrajectoryRun
 #: s the estimate must stay within the pose tolerance before a goal succeeds (five
 #: estimates at the 100 Hz joint-state rate)
 SETTLE_CONFIRM_S = 0.05
+#: handed-out motions whose predecessor the runner remembers (a driver's refusal names one
+#: of the last few: each is refused or started within a lookahead of being handed out)
+_CHAIN = 32
 
 
 class GoalState(str, enum.Enum):
@@ -173,6 +178,9 @@ class TrajectoryRunner:
         self.report_timeout = float(report_timeout)
         self._motion: _Motion | None = None
         self._hold: np.ndarray | None = None
+        #: per handed-out motion (its tag), the model it replaced: what the driver goes on
+        #: with if it rejects that motion (:meth:`on_execution`); the last :data:`_CHAIN` kept
+        self._replaced: dict[int, tuple[_Motion | None, np.ndarray | None]] = {}
         #: the driver's in-cycle admittance moves the command (its 'started' event): the
         #: model is unknown until it ends at rest ('stopped' / 'aborted' with the positions)
         self.interacting = False
@@ -255,6 +263,10 @@ class TrajectoryRunner:
         if self._goal is not None:
             events.append(GoalEvent(self._goal.goal_id, GoalState.CANCELLED,
                                     f'preempted by goal {request.goal_id}'))
+        if start.source in ('motion', 'hold'):
+            self._replaced[tag] = (self._motion, self._hold)
+            while len(self._replaced) > _CHAIN:
+                del self._replaced[next(iter(self._replaced))]
         self._motion = _Motion(start.t0, plan.trajectory, tag)
         target = np.asarray(request.target, float)
         self._goal = _Goal(request.goal_id, target, tag, plan.duration, plan.profile.value)
@@ -337,6 +349,24 @@ class TrajectoryRunner:
                 self._stopping = None
             if goal is not None:
                 goal.finished_at = now
+        elif kind == 'rejected' and tag in self._replaced:
+            # the driver refused it and goes on with what it would have replaced (a splice
+            # too far from the command, a check that failed: "the running motion continues"),
+            # which is not where the refusal found the command when that was moving: the
+            # model goes back to the motion or hold this one was planned from. A later motion
+            # planned from this one's model is planned from that too.
+            replaced = self._replaced.pop(tag)
+            for later, (motion, hold) in self._replaced.items():
+                if motion is not None and motion.tag == tag:
+                    self._replaced[later] = replaced
+            if ours:
+                self._motion, self._hold = replaced
+            if self._stopping == tag:
+                self._stopping = None
+            if goal is not None:
+                self._goal = None
+                events.append(GoalEvent(goal.goal_id, GoalState.ABORTED,
+                                        f'its motion was rejected: {reason}'))
         elif kind in ('stopped', 'rejected'):
             if ours or self._stopping == tag:
                 self._motion = None
