@@ -52,12 +52,7 @@ from brace_control.nodes.spin import BackgroundSpinner
 from test_e2e import (DEG, Device, Probe, _extra_args, _planar, check_no_stop, check_self_stress,
                       check_still, check_succeeded_goals_are_true, device_file)  # noqa: F401 (fixture)
 
-# make test runs this file after the parallel part, alone (setup.cfg marker 'serial'): beside
-# another worker's stack, a preempting plan was rejected by the driver three times in four
-# runs ("its start is 12.435 mm ... from the command": the 200-goal flood, the seeded
-# operator), a chain of preemptions the trajectory node's model and the driver's command
-# disagreed on under load (not understood; see bench/RESULTS.md "Test suite time")
-pytestmark = [pytest.mark.ros, pytest.mark.e2e, pytest.mark.slow, pytest.mark.serial]
+pytestmark = [pytest.mark.ros, pytest.mark.e2e, pytest.mark.slow]
 
 DRIVER = '/can_driver_node'
 #: goals near the parked brace (theta = 5 deg), x = 0 (the ring follows: no lateral load):

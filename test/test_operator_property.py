@@ -38,12 +38,7 @@ from test_e2e import DEG, Device, check_succeeded_goals_are_true, device_file  #
 from test_operator import (SAFE_GOALS, STILL, Operator, check_one_end_each, op,  # noqa: F401
                            operator_session, recover_and_enable)
 
-# make test runs this file after the parallel part, alone (setup.cfg marker 'serial'): beside
-# another worker's stack, a preempting plan was rejected by the driver three times in four
-# runs ("its start is 12.435 mm ... from the command": the 200-goal flood, the seeded
-# operator), a chain of preemptions the trajectory node's model and the driver's command
-# disagreed on under load (not understood; see bench/RESULTS.md "Test suite time")
-pytestmark = [pytest.mark.ros, pytest.mark.e2e, pytest.mark.slow, pytest.mark.serial]
+pytestmark = [pytest.mark.ros, pytest.mark.e2e, pytest.mark.slow]
 
 SECONDS = float(os.environ.get('BRACE_OPERATOR_SECONDS', '20'))
 SEED = int(os.environ.get('BRACE_OPERATOR_SEED', '16'))
