@@ -170,3 +170,54 @@ def test_the_child_disables_the_drives_and_ends_with_its_parent(sig, tmp_path):
     text = err.read_text()
     assert 'drives after shutdown: a1 SWITCH ON DISABLED, a2 SWITCH ON DISABLED, a3 SWITCH ON DISABLED' \
         in text, text[-2000:]
+
+
+#: in a fresh interpreter: boot a master on the device's simulator, then run what the SYNC
+#: cycle runs on the model (the platform wrench of consistent and of inconsistent positions,
+#: a soft stop's reason with the wrench capacity, a singular square G's LP) and print what
+#: that imported
+_FIRST_USE = textwrap.dedent('''
+    import os, sys
+    import numpy as np
+    from brace_control.can.master import BraceMaster
+    from brace_control.can.process import wrench_capacity_context
+    from brace_control.config import load_device_config
+    from brace_control.mechanisms import mechanism_from_config
+    from brace_control.safety import PlatformWrench
+    from brace_control.sim.brace import SimulatedBrace
+    cfg = load_device_config(sys.argv[1])
+    mech = mechanism_from_config(cfg)
+    channel = f'first-use-{os.getpid()}'
+    sim = SimulatedBrace(cfg, channel=channel)
+    master = BraceMaster.from_device_config(cfg, channel=channel)
+    master.boot()
+    before = set(sys.modules)
+    rng = np.random.default_rng(4)
+    home = np.asarray(mech.home_pose, float)
+    platform = PlatformWrench(mech)
+    q = np.asarray(mech.inverse(home), float)
+    for k in range(20):
+        platform(q + rng.normal(0.0, 2e-3, q.size) * (k % 2), rng.normal(0.0, 5.0, q.size), 0.1 * k)
+    context = wrench_capacity_context(master, mech, float(cfg['actuator']['max_force']))
+    context(0, 10.0)
+    mech.wrench_capacity(home, np.ones(q.size))
+    from brace_control.mechanisms.capacity import capacity_lp
+    capacity_lp(np.array([[1.0, 1.0], [0.0, 0.0]]), -np.ones(2), np.ones(2))
+    master.shutdown()
+    sim.shutdown()
+    print(sorted(m for m in set(sys.modules) - before if not m.startswith('brace_control')))
+''')
+
+
+@pytest.mark.parametrize('device', ['neck_brace_4rpr', 'continuum', 'lumbar_brace'])
+def test_nothing_the_cycle_runs_on_the_model_imports_a_module_after_the_boot(device):
+    """A first import in the SYNC thread (scipy's linprog for a soft stop's reason on the
+    4-RPR) held the cycle past the drives' heartbeat consumer time (1016h: twice the
+    master's 100 ms) and every drive stopped with EMCY 8130h. The boot runs each model path
+    once (mechanisms.warm_up): after it, the platform wrench (consistent positions, and
+    positions no pose fits), a soft stop's capacity context and the capacity LP import
+    nothing."""
+    out = subprocess.run([sys.executable, '-c', _FIRST_USE, device], capture_output=True, text=True,
+                         timeout=120, env={**os.environ, 'PYTHONPATH': os.pathsep.join(sys.path)})
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert out.stdout.strip().splitlines()[-1] == '[]', out.stdout[-2000:]

@@ -73,8 +73,9 @@ def test_a_goal_past_the_wrench_limit_is_braked_softly_and_nothing_latches():
 
 
 def test_cables_slack_after_a_relief_are_taken_up_on_enable_and_goals_run_again():
-    """The head's rest moves 40 mm while the brace holds (60 N): the cables pass a force
-    limit of 25 N (this test's) and a protective stop latches; relieve pays them out (the
+    """The head's rest moves 22 mm while the brace holds (33 N): the cables pass a force
+    limit of 15 N (this test's: ~13 mm of slack for the take-up's ~1 mm/s; 40 mm on 25 N
+    left 27 mm, 33 s of test) and a protective stop latches; relieve pays them out (the
     head then rests near its new rest, cables hanging slack: longer than the TRUE head pose's
     lengths, written out in rpr_oracles); recover, enable: the slack taken up, every cable
     is taut at the TRUE head pose again, holding tension_min; and a goal 5 mm back towards
@@ -82,13 +83,13 @@ def test_cables_slack_after_a_relief_are_taken_up_on_enable_and_goals_run_again(
     cfg = load_device_config(DEVICE)
     rest = np.asarray(cfg['sim']['rest_pose'], float)
     tol = np.asarray(cfg['safety']['pose_tolerance'], float)
-    extra = _extra_args() + ['-p', 'safety.force_limit:=25.0', '-p', 'safety.soft_force_limit:=20.0',
+    extra = _extra_args() + ['-p', 'safety.force_limit:=15.0', '-p', 'safety.soft_force_limit:=12.0',
                              '-p', 'safety.release_force:=5.0']
     with enabled_bring_up(DEVICE, extra) as (b, probe):
         node = b.helper
         pub = node.create_publisher(PoseStamped, topics.SIM_BODY_REST, topics.STATE_QOS)
         probe.wait(lambda: pub.get_subscription_count() > 0, 10, 'the simulator on body_rest')
-        pub.publish(pose_msg(rest + (0.04, 0.0, 0.0), frame_id='brace_base', kind='planar',
+        pub.publish(pose_msg(rest + (0.022, 0.0, 0.0), frame_id='brace_base', kind='planar',
                              stamp=node.get_clock().now().to_msg()))
         probe.wait(lambda: probe.stops() != [], 10, 'a protective stop')
         ok, msg = b.call('/can_driver_node/relieve', timeout=40)

@@ -101,6 +101,30 @@ def test_forward_kinematics_is_solved_again_only_for_new_positions_and_at_most_e
     assert platform(q + np.nan, f, 1.0) is None and platform(q, f * np.nan, 1.0) is None
 
 
+def test_positions_no_pose_fits_are_solved_again_only_every_pose_period_too():
+    """A cable brace's slack cables (lengths that fit no pose, by more than the 4-RPR's
+    residual_max): no wrench to judge by (None), and the failed solution -- the global
+    least-squares search over every branch, milliseconds -- is retried at most once per pose
+    period, not at every SYNC (it overran the cycle at 250 Hz during a take-up and once
+    held the master's heartbeat back past the drives' consumer time). A consistent q
+    afterwards gives the statics again."""
+    counting = _Counting(_mech('neck_brace_4rpr'))
+    mech = counting.mech
+    pose, q = _near_home(mech, np.random.default_rng(7))
+    slack = q + np.array([0.012, 0.0, 0.0, 0.012])          # two cables paid out 12 mm
+    with pytest.raises(ValueError, match='inconsistent'):
+        mech.forward_nearest(slack, pose)                   # premise: no pose fits
+    platform = PlatformWrench(counting, pose_period=0.01)
+    f = np.array([-1.0, -5.0, -5.0, -1.0])
+    for k in range(50):                                     # 250 Hz for 0.2 s, taking up
+        assert platform(slack - np.array([1e-5 * k, 0.0, 0.0, 1e-5 * k]), f, 0.004 * k) is None
+    assert 1 <= counting.forward_calls <= 0.2 / 0.01 + 1, counting.forward_calls
+    # taut again: solved at the next period, the mechanism's own statics there
+    w = platform(q, f, 1.0)
+    np.testing.assert_allclose(platform.pose, pose, atol=1e-9)
+    np.testing.assert_allclose(w, np.asarray(mech.wrench(pose, f), float), rtol=1e-9, atol=1e-9)
+
+
 def test_the_prediction_extrapolates_the_rise_per_displacement_to_the_motion_s_end():
     """A load rising 2 N per mm with 10 mm to go from 60 N reaches 80 N: past a 75 N limit
     (hit), not past a 90 N one; below half the limit nothing is looked at; a flat load, or a

@@ -21,6 +21,7 @@ from collections.abc import Sequence
 import can
 import canopen
 
+from ..mechanisms.base import warm_up
 from .cia402 import NmtState, OpMode, State402, Statusword
 from .dictionary import Dictionary, DictionaryReadError, ObjectRef
 from .errors import DriverInitializationError, DriverOperationError
@@ -203,6 +204,8 @@ class BootMixin:
             # silent until the boot has listened for another master (our heartbeat would make a
             # running master stop)
             self._heartbeat_on = False
+            if self.config.mechanism is not None:
+                warm_up(self.config.mechanism)     # its first-use imports here, not in the cycle
             self._thread = threading.Thread(target=self._run, name='brace-can-sync', daemon=True)
             self._thread.start()
             self._set_state(MasterState.OPEN)

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator, Mapping
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from typing import Any, NamedTuple, Protocol, Sequence, runtime_checkable
 
 import numpy as np
@@ -36,7 +36,7 @@ __all__ = [
     'as_vector', 'as_poses', 'as_points', 'as_per_actuator', 'as_range', 'as_actuator_names', 'as_condition_max',
     'as_positive', 'as_force_limits',
     'condition_number', 'check_limits', 'within_limits', 'rot2',
-    'check_section', 'section_kwargs', 'section_points', 'config_errors',
+    'check_section', 'section_kwargs', 'section_points', 'config_errors', 'warm_up',
 ]
 
 _COUNT_WORDS = {1: 'one', 2: 'two', 3: 'three', 4: 'four'}
@@ -638,3 +638,26 @@ def config_errors() -> Iterator[None]:
         raise ConfigError(f'mechanism.home_pose is not reachable: {exc}') from exc
     except (ValueError, TypeError) as exc:
         raise ConfigError(f'mechanism: {exc}') from exc
+
+
+def warm_up(mechanism: Any) -> None:
+    """Run once, at home, each model path a control cycle calls (``inverse``,
+    ``forward_nearest``, ``wrench``, ``wrench_capacity``, and the capacity's linear programme
+    whatever the pose), so that what they import on first use (scipy's ``linprog``, the
+    continuum robot's elliptic integrals and root finds) is imported by the caller, not by a
+    SYNC thread. A first import there (``linprog``, for a soft stop's reason on the 4-RPR
+    neck brace) held the cycle for over 100 ms, and the drives' heartbeat consumers (1016h,
+    twice the master's period) stopped them. Errors are the model's to report elsewhere:
+    a path that raises here has still imported what it needs.
+    """
+    home = np.asarray(mechanism.home_pose, dtype=float)
+    failures = (ValueError, TypeError, ArithmeticError, AttributeError)
+    with suppress(*failures):
+        q = np.asarray(mechanism.inverse(home), dtype=float)
+        mechanism.forward_nearest(q, home)
+    with suppress(*failures):
+        mechanism.wrench(home, np.zeros(int(mechanism.n_actuators)))
+    with suppress(*failures):
+        mechanism.wrench_capacity(home, 1.0)
+    capacity_lp(np.eye(2), -np.ones(2), np.ones(2))
+

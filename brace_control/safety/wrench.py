@@ -86,6 +86,9 @@ class PlatformWrench:
         self._rows: Any = None                  # legs' rows there (fast path)
         #: the statics at that pose, w = W f + w0: W's rows and w0, plain floats
         self._map: tuple[list[list[float]], list[float]] | None = None
+        #: the last solution failed (no pose fits ``q``: a slack cable, a sensor fault):
+        #: nothing to judge by until the next one, tried no sooner than a period later
+        self._failed = False
 
     def __call__(self, q: Sequence[float], forces: Sequence[float], now: float) -> list[float] | None:
         """The wrench (a list, one value per wrench axis), or ``None`` when no pose fits
@@ -94,9 +97,12 @@ class PlatformWrench:
         f = [float(x) for x in forces]
         if not all(map(math.isfinite, key)) or not all(map(math.isfinite, f)):
             return None
-        if key != self._key and (now - self._t >= self._period or (self._rows is None and self._map is None)):
+        if key != self._key and (now - self._t >= self._period or
+                                 (self._rows is None and self._map is None and not self._failed)):
             if not self._refresh(key, now):
                 return None
+        if self._failed:
+            return None
         rows = self._rows
         if rows is not None and len(f) == len(rows):
             return self.legs.wrench(rows, f)
@@ -116,18 +122,23 @@ class PlatformWrench:
             return None
 
     def _refresh(self, key: tuple[float, ...], now: float) -> bool:
+        """Solve the pose of ``key`` afresh. A failed solution (no pose fits) is paced like
+        a good one: the global search it falls back on (every branch, least squares: a cable
+        brace's slack cables during a take-up) took ~4 ms, and retried at every SYNC it
+        overran the cycle and once held the heartbeat back past the drives' consumer time."""
         t0 = time.perf_counter()
         try:
             pose = np.asarray(self.mechanism.forward_nearest(np.array(key), self.pose), dtype=float)
         except ValueError:
-            self._key, self._rows, self._map = None, None, None
-            return False
+            pose = None
         if self.pose_period > 0.0:
             self._period = max(self.pose_period, (time.perf_counter() - t0) / FK_SHARE)
-        if not np.isfinite(pose).all():
-            return False
-        self.pose, self._key, self._t = pose, key, now
+        self._key, self._t = key, now
         self._rows, self._map = None, None
+        self._failed = pose is None or not np.isfinite(pose).all()
+        if self._failed:
+            return False
+        self.pose = pose
         if self.legs is not None and pose.shape == (3,):
             try:
                 lengths, rows = self.legs.lengths_and_rows(*pose.tolist())
