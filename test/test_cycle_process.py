@@ -198,6 +198,14 @@ _FIRST_USE = textwrap.dedent('''
     q = np.asarray(mech.inverse(home), float)
     for k in range(20):
         platform(q + rng.normal(0.0, 2e-3, q.size) * (k % 2), rng.normal(0.0, 5.0, q.size), 0.1 * k)
+    for k in range(5):                     # the in-cycle admittance's model calls, near home
+        pose = home + rng.normal(0.0, 1e-3, home.size)
+        try:
+            qk = mech.inverse(pose)
+        except ValueError:
+            continue
+        mech.jacobian(pose)
+        mech.forward_nearest(qk, home)
     context = wrench_capacity_context(master, mech, float(cfg['actuator']['max_force']))
     context(0, 10.0)
     mech.wrench_capacity(home, np.ones(q.size))
@@ -209,14 +217,15 @@ _FIRST_USE = textwrap.dedent('''
 ''')
 
 
-@pytest.mark.parametrize('device', ['neck_brace_4rpr', 'continuum', 'lumbar_brace'])
+@pytest.mark.parametrize('device', ['lumbar_brace', 'neck_brace_4rpr', 'neck_brace_3rrr', 'neck_brace_2r',
+                                    'upper_limb_trainer', 'shoulder', 'continuum'])
 def test_nothing_the_cycle_runs_on_the_model_imports_a_module_after_the_boot(device):
     """A first import in the SYNC thread (scipy's linprog for a soft stop's reason on the
     4-RPR) held the cycle past the drives' heartbeat consumer time (1016h: twice the
     master's 100 ms) and every drive stopped with EMCY 8130h. The boot runs each model path
     once (mechanisms.warm_up): after it, the platform wrench (consistent positions, and
-    positions no pose fits), a soft stop's capacity context and the capacity LP import
-    nothing."""
+    positions no pose fits), the admittance's inverse, Jacobian and forward kinematics, a
+    soft stop's capacity context and the capacity LP import nothing."""
     out = subprocess.run([sys.executable, '-c', _FIRST_USE, device], capture_output=True, text=True,
                          timeout=120, env={**os.environ, 'PYTHONPATH': os.pathsep.join(sys.path)})
     assert out.returncode == 0, out.stderr[-3000:]

@@ -642,7 +642,7 @@ def config_errors() -> Iterator[None]:
 
 def warm_up(mechanism: Any) -> None:
     """Run once, at home, each model path a control cycle calls (``inverse``,
-    ``forward_nearest``, ``wrench``, ``wrench_capacity``, and the capacity's linear programme
+    ``forward_nearest``, ``jacobian``, ``wrench``, ``wrench_capacity``, and the capacity's linear programme
     whatever the pose), so that what they import on first use (scipy's ``linprog``, the
     continuum robot's elliptic integrals and root finds) is imported by the caller, not by a
     SYNC thread. A first import there (``linprog``, for a soft stop's reason on the 4-RPR
@@ -655,6 +655,8 @@ def warm_up(mechanism: Any) -> None:
     with suppress(*failures):
         q = np.asarray(mechanism.inverse(home), dtype=float)
         mechanism.forward_nearest(q, home)
+    with suppress(*failures):
+        mechanism.jacobian(home)
     with suppress(*failures):
         mechanism.wrench(home, np.zeros(int(mechanism.n_actuators)))
     with suppress(*failures):
