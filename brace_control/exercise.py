@@ -148,7 +148,7 @@ def device_exercise(config: str | Path = 'lumbar_brace', *, spacing: float = 4.0
     if kind == 'rpr3':
         lateral = LATERAL_SHIFT if holds_lateral_shift(cfg, mech, home, LATERAL_SHIFT) else 0.0
         return exercise_goals(home, spacing=spacing, lateral=lateral)
-    if getattr(mech, 'pose_kind', None) == 'spherical':
+    if mech.pose_kind == 'spherical':
         # flexion 15 deg, the others 20 deg: the built joint's transmission worsens with
         # flexion (k(J) 32 at 20 deg, 149 at 25 deg; the YAML's limit is 100) and holding the
         # simulated arm at 20 deg flexion takes 23.1 N·m on m2, above the soft force limit
@@ -220,7 +220,7 @@ def write_goal_bag(out: str | Path, goals: Sequence[Goal], *, frame_id: str,
 
     :param storage: ``'mcap'`` or ``'sqlite3'``.
     """
-    spherical = getattr(mechanism, 'pose_kind', None) == 'spherical'
+    spherical = mechanism.pose_kind == 'spherical'
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
     store = get_typestore(Stores.ROS2_HUMBLE)

@@ -117,7 +117,7 @@ def _scenario(device_file: Path, node, probe, tmp_path: Path) -> None:
     name = device_file.stem
     cfg = load_device_config(device_file)
     mech = mechanism_from_config(cfg)
-    kind = getattr(mech, 'pose_kind', {3: 'planar', 2: 'xy'}[mech.dof])
+    kind = mech.pose_kind
     goals = _goals(name, cfg)
     # the oracle: IK of the goal, checked by an independent constraint
     want = np.asarray(mech.inverse(goals[-1]), float)

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -105,3 +106,24 @@ def test_wrench_planar_components():
     assert (w.wrench.force.x, w.wrench.force.y, w.wrench.torque.z) == (1.0, 2.0, 3.0)
     assert (w.wrench.force.z, w.wrench.torque.x, w.wrench.torque.y) == (0.0, 0.0, 0.0)
     assert w.header.frame_id == 'brace_platform'
+
+
+def test_every_mechanism_declares_its_pose_kind_and_it_fits_its_dof():
+    """The pose kind (how a pose maps onto a geometry_msgs/Pose) is the mechanism's own
+    declaration, one of base.POSE_KINDS, with the dof that kind has: nothing infers it from
+    the dof (issue 25, "the pose-kind switch moved onto the mechanism")."""
+    from brace_control.config import load_device_config
+    from brace_control.mechanisms import mechanism_from_config
+    from brace_control.mechanisms.base import POSE_KINDS
+    from brace_control.nodes.msgs import pose_kind
+    devices = sorted(p.stem for p in (Path(__file__).resolve().parents[1] / 'config').glob('*.yaml'))
+    assert len(devices) >= 7, devices
+    for device in devices:
+        mech = mechanism_from_config(load_device_config(device))
+        assert mech.pose_kind in POSE_KINDS and POSE_KINDS[mech.pose_kind] == mech.dof, (device, mech.pose_kind)
+        assert pose_kind(mech) == mech.pose_kind
+
+    class NoKind:
+        dof = 3
+    with pytest.raises(TypeError, match='declares no pose_kind'):
+        pose_kind(NoKind())

@@ -36,7 +36,7 @@ __all__ = [
     'as_vector', 'as_poses', 'as_points', 'as_per_actuator', 'as_range', 'as_actuator_names', 'as_condition_max',
     'as_positive', 'as_force_limits',
     'condition_number', 'check_limits', 'within_limits', 'rot2',
-    'check_section', 'section_kwargs', 'section_points', 'config_errors', 'warm_up',
+    'check_section', 'section_kwargs', 'section_points', 'config_errors', 'warm_up', 'POSE_KINDS',
 ]
 
 _COUNT_WORDS = {1: 'one', 2: 'two', 3: 'three', 4: 'four'}
@@ -91,6 +91,10 @@ class Mechanism(Protocol):
     """
 
     dof: int
+    #: how the pose vector maps onto a ``geometry_msgs/Pose`` (one of :data:`POSE_KINDS`):
+    #: ``'planar'`` (x, y m, theta rad about z), ``'xy'`` (x, y m), ``'path'`` (one
+    #: coordinate, position.x), ``'spherical'`` (three angles, a rotation)
+    pose_kind: str
     n_actuators: int
     actuator_names: tuple[str, ...]
     #: the wrench components ``wrench_capacity`` reports (e.g. ``('Fx', 'Fy', 'Mz')``)
@@ -638,6 +642,10 @@ def config_errors() -> Iterator[None]:
         raise ConfigError(f'mechanism.home_pose is not reachable: {exc}') from exc
     except (ValueError, TypeError) as exc:
         raise ConfigError(f'mechanism: {exc}') from exc
+
+
+#: the pose kinds a mechanism may declare (:attr:`Mechanism.pose_kind`) and their dof
+POSE_KINDS = {'planar': 3, 'xy': 2, 'path': 1, 'spherical': 3}
 
 
 def warm_up(mechanism: Any) -> None:

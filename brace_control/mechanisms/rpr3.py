@@ -119,6 +119,7 @@ class Rpr3(RprLegs, MechanismBase):
     """
 
     dof: int = 3
+    pose_kind: str = 'planar'
     n_actuators: int = 3
     #: an FK solution must reproduce the input lengths to this (m)
     verify_tol: float = 1e-9

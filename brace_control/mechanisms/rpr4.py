@@ -140,6 +140,7 @@ class Rpr4(RprLegs, MechanismBase):
     """
 
     dof: int = 3
+    pose_kind: str = 'planar'
     n_actuators: int = 4
     _angle_name = 'psi'
 

@@ -126,6 +126,7 @@ class Rr2(MechanismBase):
     """
 
     dof: int = 2
+    pose_kind: str = 'xy'
     n_actuators: int = 2
     _singular_hint = ' (arm stretched or folded)'
     wrench_axes = ('Fx', 'Fy')

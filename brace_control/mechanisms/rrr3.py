@@ -107,6 +107,7 @@ class Rrr3(MechanismBase):
     """
 
     dof: int = 3
+    pose_kind: str = 'planar'
     n_actuators: int = 3
     _angle_name = 'phi'
 

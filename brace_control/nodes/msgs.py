@@ -168,15 +168,16 @@ def rotvec_from_quaternion(q: Any) -> np.ndarray:
 # ------------------------------------------------------------------------- poses
 
 def pose_kind(mechanism: Any) -> str:
-    """How a mechanism's pose maps onto a ``Pose``: ``'planar'``, ``'xy'``, ``'path'``, ``'spherical'``.
+    """How a mechanism's pose maps onto a ``Pose``: its ``pose_kind`` (``'planar'``, ``'xy'``,
+    ``'path'``, ``'spherical'``: :data:`brace_control.mechanisms.base.POSE_KINDS`).
 
-    A mechanism may say so itself with a ``pose_kind`` attribute; otherwise it is
-    inferred from ``dof`` (3 -> planar, 2 -> xy, 1 -> path).
+    :raises TypeError: the mechanism declares none.
     """
     kind = getattr(mechanism, 'pose_kind', None)
-    if kind:
-        return str(kind)
-    return {3: 'planar', 2: 'xy', 1: 'path'}.get(int(mechanism.dof), 'planar')
+    if not isinstance(kind, str) or not kind:
+        raise TypeError(f'{type(mechanism).__name__} declares no pose_kind (one of planar, xy, path, '
+                        'spherical: brace_control.mechanisms.base.Mechanism)')
+    return kind
 
 
 def _check_frame(msg: PoseStamped, frame_id: str | None) -> None:

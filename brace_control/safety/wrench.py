@@ -53,10 +53,8 @@ SOFT_STREAM_S = 0.25
 
 def wrench_axis(mechanism: Any, j: int) -> tuple[str, str]:
     """Name and unit of axis ``j`` of ``safety.max_wrench`` for the mechanism's pose kind."""
-    kind = getattr(mechanism, 'pose_kind', None) or {3: 'planar', 2: 'xy'}.get(
-        int(getattr(mechanism, 'dof', 0)), '')
     axes = {'planar': (('Fx', 'N'), ('Fy', 'N'), ('Mz', 'N·m')), 'xy': (('Fx', 'N'), ('Fy', 'N')),
-            'spherical': (('Mx', 'N·m'), ('My', 'N·m'), ('Mz', 'N·m'))}.get(kind, ())
+            'spherical': (('Mx', 'N·m'), ('My', 'N·m'), ('Mz', 'N·m'))}.get(mechanism.pose_kind, ())
     return axes[j] if j < len(axes) else (f'axis {j}', 'N or N·m')
 
 

@@ -492,7 +492,7 @@ class TrajectoryRunner:
         """Per pose coordinate (name, scale, unit, decimals) for messages: mm / deg where it helps."""
         names = getattr(self.mech, 'pose_names', None) or (('x', 'y', 'theta') if self.mech.dof == 3
                                                              else tuple(f'q{i}' for i in range(self.mech.dof)))
-        angular = self.mech.dof == 3 and getattr(self.mech, 'pose_kind', 'planar') == 'planar'
+        angular = self.mech.pose_kind == 'planar'
         out = []
         for i in range(self.mech.dof):
             if angular and i == 2:
