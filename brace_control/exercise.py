@@ -220,7 +220,7 @@ def write_goal_bag(out: str | Path, goals: Sequence[Goal], *, frame_id: str,
 
     :param storage: ``'mcap'`` or ``'sqlite3'``.
     """
-    spherical = mechanism.pose_kind == 'spherical'
+    spherical = mechanism is not None and mechanism.pose_kind == 'spherical'
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
     store = get_typestore(Stores.ROS2_HUMBLE)

@@ -143,6 +143,54 @@ def test_a_late_start_from_rest_moves_the_whole_schedule():
         [(1, 'started'), (1, 'preempted'), (2, 'started'), (2, 'finished')]
 
 
+def test_a_plan_arriving_after_its_predecessor_started_late_splices_where_it_was_planned():
+    """A's plan reached the driver 0.5 s after its start (a busy host): from rest it starts at
+    once, 0.5 s behind its plan. B, planned from A's state 0.3 s into A while the planner
+    believed A on time, arrives 0.2 s after A started (after B's own start time on the
+    planner's clock): it takes over 0.3 s into A, exactly, never "sampled on its own
+    clock" 16 mm away (the seeded operator's refusal)."""
+    ex = executor()
+    A = Quintic(Q0, np.zeros(3), np.zeros(3), Q0 + [0.004, 0.010, 0.016], 1.0)
+    t_a, late = 0.1, 0.5
+    t_b = t_a + 0.3
+    B = Quintic(*A(t_b - t_a), Q0 - [0.002, 0.004, 0.006], 1.2)
+    assert ex.load(A.knots(), t_a, 1, now=t_a + late) is None
+    first = t_a + late                                   # A starts here, on the master's clock
+    samples = run(ex, first, first + 0.2)
+    assert ex.load(B.knots(), t_b, 2, now=first + 0.2) is None
+    samples += run(ex, first + 0.2 + T_SYNC, first + 1.6)
+    for t, q in samples:
+        expected = A(t - first)[0] if t < first + 0.3 - 1e-9 else B(t - first - 0.3)[0]
+        assert np.max(np.abs(q - expected)) < 1e-9, (t, q - expected)
+    assert [k for k in kinds(ex) if k[1] in ('started', 'finished', 'preempted', 'rejected')] == \
+        [(1, 'started'), (1, 'preempted'), (2, 'started'), (2, 'finished')]
+    assert ex.events[-1].lag == pytest.approx(late, abs=1e-9)    # B ended 0.5 s late, and says so
+
+
+def test_a_stop_while_the_motion_runs_late_brakes_from_the_next_step():
+    """A started 0.5 s late (the executor's clock that far behind the master's): a cancel at
+    master time 1.0 s brakes from the next step, not 0.5 s later; the motion is at rest
+    short of where it would have gone, within the brake's time of the cancel."""
+    ex = executor()
+    A = Quintic(Q0, np.zeros(3), np.zeros(3), Q0 + [0.004, 0.010, 0.016], 1.0)
+    assert ex.load(A.knots(), 0.1, 1, now=0.6) is None
+    run(ex, 0.6, 1.0)
+    v_before = np.linalg.norm(ex.v)
+    assert v_before > 0.01 and ex.lag == pytest.approx(0.5)
+    ex.stop('cancel requested', now=1.0)
+    t, speeds = 1.0, []
+    while ex.state.value != 'hold':
+        t += T_SYNC
+        ex.step(t)
+        speeds.append(np.linalg.norm(ex.v))
+        assert t < 2.0
+    assert speeds[round(0.1 / T_SYNC)] < 0.8 * v_before      # braking 0.1 s after the cancel
+    stopped = [e for e in ex.events if e.kind == 'stopped']
+    assert len(stopped) == 1 and 'cancel' in stopped[0].reason
+    assert t - 1.0 <= 0.3, t                     # the brake's time (~0.2 s), not 0.5 s more
+    assert np.max(np.abs(ex.q - A(1.0)[0])) > 1e-3   # short of A's end
+
+
 def test_a_stop_drops_every_scheduled_trajectory():
     ex = executor()
     A = Quintic(Q0, np.zeros(3), np.zeros(3), Q0 + 0.01, 1.0)

@@ -23,7 +23,9 @@ or delays one axis alone:
   position, velocity and acceleration is blended out by a quintic correction over a time
   long enough that the correction stays within a small share of the limits. A
   trajectory whose start is already past starts now when the brace is at rest (it was
-  planned from rest there), and is sampled on its own clock when moving (the motion it
+  planned from rest there: the executor's clock goes back to its start, behind the
+  master's until the brace rests again, so that what was planned on its timeline splices
+  where it was planned to), and is sampled on its own clock when moving (the motion it
   replaces went on meanwhile);
 * a stream of setpoints (teleoperation) is tracked with one scale for all axes: the
   velocity change of a cycle is one vector, scaled down as a whole to the acceleration
@@ -307,7 +309,9 @@ class PathExecutor:
             return
         self._drop_pending(reason, now)
         if self.state is ExecutionState.TRAJECTORY and self._brake is None:
-            self._start_brake(now, reason, a_share)
+            # ``now`` is the master's clock; the motion runs on the executor's, ``lag``
+            # behind it: the brake begins at the next step, not ``lag`` later
+            self._start_brake(now - self.lag, reason, a_share)
         elif self.state is ExecutionState.STREAM:
             self._stream = None
             self._stream_stopping = True
@@ -436,7 +440,7 @@ class PathExecutor:
             # the first starts and is replaced at once, the second splices onto its command)
             advanced = False
             while self._pending and t_exec >= self._pending[0].t_start:
-                self._splice(t_exec, dt, advance=not advanced)
+                t_exec = self._splice(t_exec, dt, advance=not advanced)
                 advanced = True
         elif self.state is ExecutionState.TRAJECTORY:
             self._advance(t_exec, dt)
@@ -479,9 +483,10 @@ class PathExecutor:
             return 'its last point is not at rest (velocity and acceleration must be zero)'
         return None
 
-    def _splice(self, t: float, dt: float, *, advance: bool = True) -> None:
+    def _splice(self, t: float, dt: float, *, advance: bool = True) -> float:
         """The first scheduled trajectory takes over at ``t``; ``advance``: the running one
-        has not been advanced to ``t`` yet in this step."""
+        has not been advanced to ``t`` yet in this step. Returns the executor's time of the
+        takeover (``t``, or earlier for a late start from rest)."""
         new = self._pending.pop(0)
         at_rest = self.state is ExecutionState.HOLD
         # the old motion's command at t (a stream keeps its last command), then the new one's
@@ -492,14 +497,13 @@ class PathExecutor:
         traj = new.traj
         if traj.start_time > 0.0:
             traj = new.traj = traj.with_start(old_q, old_v, old_a)
-        if at_rest and new.t_start < t:
-            # from rest: a late start means now, and what was scheduled after it (planned on
-            # its timeline) moves by as much
-            delay = t - new.t_start
-            new.t_start = t
-            for p in self._pending:
-                p.t_start += delay
-        new.tau = min(t - new.t_start, traj.duration)
+        # from rest, a late start means now: the executor's clock goes back to the motion's
+        # start and runs behind the master's by the delay (reported as lag) until the brace
+        # is at rest again. What is planned on the motion's timeline (scheduled after it, or
+        # arriving later, planned from it while the planner believed it on time: a plan
+        # delivered late on a busy host) then splices where it was planned to
+        t_take = new.t_start if at_rest and new.t_start < t else t
+        new.tau = min(t_take - new.t_start, traj.duration)
         q, v, a = traj.sample(new.tau)
         dq, dv, da = old_q - q, old_v - v, old_a - a
         if np.max(np.abs(dq)) > self.splice_tolerance:
@@ -508,7 +512,10 @@ class PathExecutor:
                 new.tag, 'rejected', f'its start is {abs(dq[i]) * 1e3:.3f} mm (or mrad) from the '
                 f'command on joint {i + 1}, more than the splice tolerance '
                 f'{self.splice_tolerance * 1e3:.3f}; the running motion continues', t, old_q))
-            return
+            return t
+        if t_take < t:
+            self.lag += t - t_take
+            t = t_take
         if self._running is not None:
             self._finish('preempted', f'replaced by trajectory {new.tag}', t, rest=False)
         if self.state is ExecutionState.INTERACTION:
@@ -525,6 +532,7 @@ class PathExecutor:
         new.started = True
         self.events.append(self._event(new.tag, 'started', '', t, old_q))
         self._command(t, q, v, a)
+        return t
 
     def _make_blend(self, t: float, dq: np.ndarray, dv: np.ndarray, da: np.ndarray) -> _Blend:
         """A correction from ``(dq, dv, da)`` to zero that uses about BLEND_SHARE of the limits.
