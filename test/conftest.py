@@ -79,8 +79,9 @@ def pytest_sessionstart(session):
         session.config._fastdds_shm_clean = _clean_zombie_shm()
 
 
-#: per file, the seconds it took in a measured run (``make test``'s two workers, from pytest's
-#: JUnit XML: bench/RESULTS.md "Test suite time"); a file not listed counts as UNTIMED_FILE_S
+#: per file, the seconds it took in a measured run (``make test``'s two parts with
+#: ``--durations=0``: each file's setup, call and teardown summed; bench/RESULTS.md "Test suite
+#: time"); a file not listed counts as UNTIMED_FILE_S
 FILE_TIMES = os.path.join(os.path.dirname(__file__), 'file_times.json')
 UNTIMED_FILE_S = 30.0
 
