@@ -31,7 +31,7 @@ demo: venv
 # cycle runs in its own real-time process (issue 27), so two stacks share two cores.
 # --no-loadscope-reorder: the files go out in test/conftest.py's order, the longest first
 # (xdist's own order, the most tests first, left the few-test bring-up files for the end).
-# Then the files marked 'serial' (the whole stack in the test's own process), alone.
+# Then the files marked 'serial' (the control cycle inside the test's own process), alone.
 # TEST_WORKERS=0 runs everything in one process; timings: bench/RESULTS.md "Test suite time".
 TEST_WORKERS ?= 2
 test: venv

@@ -30,10 +30,7 @@ from brace_control.nodes import topics
 from brace_control.nodes.msgs import status_values
 from ros_helpers import BUSY_HOST_ARGS, home_and_enable, stack_in_process, wait_until as wait
 
-# make test runs this file after the parallel part, alone (setup.cfg marker 'serial'): the
-# whole stack in this process, its SYNC cycle at normal priority beside the test's threads,
-# stretched 3.4x beside another worker's stack
-pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.serial]
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 ROOT = Path(__file__).resolve().parent.parent
 TRAINER = ROOT / 'config' / 'upper_limb_trainer.yaml'

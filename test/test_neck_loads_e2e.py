@@ -27,10 +27,7 @@ from brace_control.nodes.msgs import pose_msg
 from rpr_oracles import cable_lengths_4rpr
 from test_e2e import _extra_args, _planar, enabled_bring_up
 
-# make test runs this file after the parallel part, alone (setup.cfg marker 'serial'): the
-# nodes run inside the test's process (enabled_bring_up); beside another worker's stack all
-# four simulated drives once lost the master's heartbeat during the take-up (EMCY 8130h)
-pytestmark = [pytest.mark.ros, pytest.mark.e2e, pytest.mark.slow, pytest.mark.serial]
+pytestmark = [pytest.mark.ros, pytest.mark.e2e, pytest.mark.slow]
 
 DEVICE = Path(__file__).resolve().parents[1] / 'config' / 'neck_brace_4rpr.yaml'
 
