@@ -635,7 +635,7 @@ def test_a_ring_inside_by_less_than_the_encoders_resolve_is_no_success(mech, lim
         run.on_execution(4, 'started', '', None, now=0.1)
         run.on_execution(4, 'finished', '', lumbar_eq3(goal), now=2.0)
         events = []
-        for i in range(40):                        # at rest there, no scatter, for 0.4 s
+        for i in range(56):                        # at rest there, no scatter, past the settle time
             t = 2.01 + 0.01 * i
             events += run.on_estimate(goal + [dx, 0.0, 0.0], stamp=t, now=t)
         events += run.check(2.6)
@@ -645,6 +645,32 @@ def test_a_ring_inside_by_less_than_the_encoders_resolve_is_no_success(mech, lim
             assert f'x {2 * sigma[0] * 1e3:.2f} mm' in events[0].reason, events[0].reason
 
 
+def test_the_settle_time_runs_on_the_estimates_stamps_not_on_their_arrival(mech, limits):
+    """On a loaded host the estimates arrive late: a platform at the goal whose estimates
+    (stamped 10 ms apart from the motion's end) reach the runner 0.8 s late succeeds, and
+    is not aborted at the end of the settle time by the runner's clock. Estimates that stop
+    coming end it ``report_timeout`` after the settle time, saying none came."""
+    run = make_runner(mech, limits, Profile.MINIMUM_JERK)
+    goal = HOME + [0.0, 0.01, 0.05]
+    submit(run, '1', goal, 0.0, tag=6)
+    run.on_execution(6, 'started', '', None, now=0.1)
+    run.on_execution(6, 'finished', '', lumbar_eq3(goal), now=2.0)
+    assert run.check(2.6) == []                        # 0.6 s by the clock, no estimate yet
+    events = []
+    for k in range(8):                                 # stamped 2.01.., arriving at 2.81..
+        events += run.on_estimate(goal + [0.0005, 0.0, 0.0], stamp=2.01 + 0.01 * k, now=2.81 + 0.01 * k)
+    assert [(e.goal_id, e.state) for e in events] == [('1', GoalState.SUCCEEDED)]
+
+    run = make_runner(mech, limits, Profile.MINIMUM_JERK)
+    submit(run, '2', goal, 0.0, tag=7)
+    run.on_execution(7, 'started', '', None, now=0.1)
+    run.on_execution(7, 'finished', '', lumbar_eq3(goal), now=2.0)
+    assert run.check(3.4) == []                        # within settle (0.5) + report time-out (1)
+    events = run.check(3.6)
+    assert [(e.goal_id, e.state) for e in events] == [('2', GoalState.ABORTED)]
+    assert 'no pose estimate' in events[0].reason
+
+
 def test_a_platform_that_does_not_follow_is_aborted_saying_by_how_much(mech, limits):
     run = make_runner(mech, limits, Profile.MINIMUM_JERK)
     goal = HOME + [0.015, 0.0, 0.0]
@@ -652,9 +678,11 @@ def test_a_platform_that_does_not_follow_is_aborted_saying_by_how_much(mech, lim
     run.on_execution(3, 'started', '', None, now=0.1)
     run.on_execution(3, 'finished', '', lumbar_eq3(goal), now=2.0)
     ring = HOME + [0.0001, 0.0, 0.0]                    # the ring stayed home (lateral)
-    for k in range(10):
+    for k in range(9):
         assert run.on_estimate(ring, stamp=2.0 + 0.05 * k, now=2.0 + 0.05 * k) == []
     assert run.check(2.4) == []                        # still within the settle time
+    for k in range(9, 12):                             # estimates past the settle time (0.5 s)
+        assert run.on_estimate(ring, stamp=2.0 + 0.05 * k, now=2.0 + 0.05 * k) == []
     events = run.check(2.6)
     assert [(e.goal_id, e.state) for e in events] == [('1', GoalState.ABORTED)]
     assert 'did not follow' in events[0].reason and 'x off by 14.90 mm' in events[0].reason

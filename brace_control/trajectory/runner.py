@@ -8,7 +8,9 @@ reports (docs/safety.md §12, §16):
 
 * **succeeded** only when the driver reported the motion finished, the drives were enabled
   all along, and the estimated platform pose (load aware) came within ``pose_tolerance``
-  of the goal within ``settle_time`` after that and stayed within it for
+  of the goal within ``settle_time`` after that (on the estimates' stamps: evidence that
+  arrives late on a loaded host still counts; none for ``report_timeout`` more aborts) and
+  stayed within it for
   :data:`SETTLE_CONFIRM_S` (a ring still creeping across the edge of the tolerance has not
   arrived: the estimate samples it, and a ring judged on its first sample inside may be
   outside again by the time the success is reported), with the mean of that window's
@@ -143,6 +145,8 @@ class _Goal:
     inside: list[tuple[float, np.ndarray]] = field(default_factory=list)
     #: 1-sigma per pose coordinate the encoders' quantisation leaves at the target
     resolution: np.ndarray | None = None
+    #: stamp of the newest estimate since the motion finished (the settle time runs on it)
+    last_stamp: float | None = None
 
 
 class TrajectoryRunner:
@@ -402,6 +406,7 @@ class TrajectoryRunner:
         goal = self._goal
         if goal is None or goal.finished_at is None or stamp < goal.finished_at:
             return []
+        goal.last_stamp = stamp if goal.last_stamp is None else max(goal.last_stamp, stamp)
         signed = self._estimate - goal.target
         err = np.abs(signed)
         if goal.best_error is None or np.max(err / self.pose_tolerance) < np.max(goal.best_error / self.pose_tolerance):
@@ -438,7 +443,12 @@ class TrajectoryRunner:
         if goal.finished_at is not None:
             # an estimate inside the tolerance when the time is up gets its confirmation
             confirming = SETTLE_CONFIRM_S if goal.inside_since is not None else 0.0
-            if now - goal.finished_at <= self.settle_time + confirming:
+            window = self.settle_time + confirming
+            # the settle time runs on the estimates' own stamps: on a loaded host they arrive
+            # late, and a platform at the goal is not judged on evidence still on its way;
+            # estimates that stop coming end it report_timeout later by the clock
+            seen = goal.last_stamp is not None and goal.last_stamp - goal.finished_at > window
+            if not seen and now - goal.finished_at <= window + self.report_timeout:
                 return []
             self._goal = None
             if goal.best_error is None:
