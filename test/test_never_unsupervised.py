@@ -302,20 +302,18 @@ def test_a_configuration_error_exits_2_in_2_s_as_a_process(tmp_path, command):
     elapsed = time.monotonic() - t0
     assert done.returncode == 2, done.stderr[-2000:]
     assert key in done.stderr and 'Traceback' not in done.stderr, done.stderr[-2000:]
-    assert elapsed <= 2.0 + _python_start(), elapsed
-
-
-_START: list[float] = []
+    start = _python_start()
+    assert elapsed <= 2.0 + start, (elapsed, start)
 
 
 def _python_start() -> float:
-    """This machine's cost of starting Python with numpy and scipy (the interpreter, not our
-    code): the 2 s budget is on top of it under load."""
-    if not _START:
-        t0 = time.monotonic()
-        subprocess.run([sys.executable, '-c', 'import numpy, scipy.optimize, yaml'], check=True)
-        _START.append(time.monotonic() - t0)
-    return _START[0]
+    """This machine's cost, now, of starting Python with numpy, scipy and rclpy (the
+    interpreter and its libraries, not our code): the 2 s budget is on top of it. Measured
+    right after the run it is compared with (a figure taken once, on a quiet moment, failed
+    the bound beside two busy loops: 6.2 s against 2 + 1.6 s)."""
+    t0 = time.monotonic()
+    subprocess.run([sys.executable, '-c', 'import numpy, scipy.optimize, yaml, rclpy'], check=True)
+    return time.monotonic() - t0
 
 
 # ------------------------------------------------------------------ goals nobody can parse
