@@ -86,7 +86,6 @@ PSI_TENSION = math.radians(-45.0)
 _SQRT2 = math.sqrt(2.0)
 
 
-
 def _load_elliptic() -> None:
     """Bind scipy's incomplete elliptic integrals in place of the two stubs below: scipy is
     imported on first use, not with the package (every node process's start), and the
@@ -106,6 +105,7 @@ def ellipeinc(phi: Any, m: Any) -> Any:
     """``scipy.special.ellipeinc``: this stub replaces itself with it on the first call."""
     _load_elliptic()
     return ellipeinc(phi, m)
+
 
 def bar_end(k: float | np.ndarray, psi: float, length: float, ei: float
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -63,6 +63,7 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from ..can.units import scaling_from_config
 from ..config import ConfigError
+from ..schema import SCHEMA
 from ..mechanisms import mechanism_from_config
 from ..trajectory import (FittsLaw, GoalEvent, GoalRequest, GoalState, Limits, PlanRejected,
                           PoseError, Profile, TrajectoryError, TrajectoryRunner, arrival_times,
@@ -78,8 +79,8 @@ __all__ = ['TrajectoryNode', 'main']
 
 #: s from the start of planning to the motion taking over (planning, IK and two DDS hops
 #: must fit in it for an exact splice; a late motion is blended in by the driver): the
-#: default of ``trajectory.plan_lookahead``
-PLAN_LOOKAHEAD_S = 0.15
+#: default of ``trajectory.plan_lookahead`` (defined in the schema only)
+PLAN_LOOKAHEAD_S = float(SCHEMA['trajectory.plan_lookahead'].default)
 #: s a goal waits for a cancelled motion to finish braking before it is planned
 STOPPING_WAIT_S = 3.0
 #: Hz of the timeout checks while a goal is active (none while idle)
