@@ -452,6 +452,38 @@ def test_a_stall_of_the_whole_host_process_does_not_trip_the_heartbeat_consumer(
     assert node.sdo[0x6041].raw & 0x6F == 0x27            # still OPERATION ENABLED
 
 
+def test_a_stall_in_the_middle_of_the_simulators_timer_work_is_a_stall_too(
+        rig: Rig, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The host stands still (the GIL held 3x the consumer time) just after the simulator's
+    timer thread read the clock, before it judged the deadlines: the drive's clock stood still
+    with it, whenever in the timer thread's loop the stall falls (sim/host.py)."""
+    node = rig.node(3)
+    node.sdo[0x1016][1].raw = (127 << 16) | 100           # consumer time 100 ms
+    hb = rig.net.send_periodic(0x77F, b'\x05', 0.02)
+    enable_csp(rig, 3)
+    drive = rig.sim.drive(3)
+    armed = threading.Event()
+    stalls: list[float] = []
+    tick = drive.tick
+
+    def stalling_tick(now: float, heard_until: float | None = None) -> float:
+        if armed.is_set():
+            armed.clear()
+            stalls.append(_hold_the_gil(0.3))
+        return tick(now, heard_until)
+
+    monkeypatch.setattr(drive, 'tick', stalling_tick)
+    since = rig.rec.mark()
+    armed.set()
+    wait_until(lambda: stalls)
+    assert stalls[0] > 0.2, f'the stall lasted {stalls[0]:.3f} s; 0.3 s expected'
+    rig.rec.wait(cob(0x703), since=rig.rec.mark(), count=3)   # > 100 ms after it
+    hb.stop()
+    assert not drive.master_heartbeat_lost
+    assert not rig.rec.wait(cob(0x83), since=since, count=0), 'EMCY sent'
+    assert node.sdo[0x6041].raw & 0x6F == 0x27            # still OPERATION ENABLED
+
+
 def test_frames_queued_behind_a_busy_simulator_thread_are_not_silence(rig: Rig) -> None:
     """The simulator's receive thread busy for 3x the consumer time (here: its SYNC handler
     sleeps 0.3 s, the GIL free, the timer thread on time) while the master's heartbeats keep

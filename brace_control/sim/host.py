@@ -9,8 +9,8 @@ thread runs the drives' heartbeats, heartbeat-consumer timeouts and TPDO event t
 
 Host stalls: the simulated drives run inside the host process. When that process does not
 run at all for a while (a full pass of Python's garbage collector over a large heap, the OS
-scheduler on a loaded machine), the timer thread wakes late; the drives' clock is taken to
-have stood still for that time (:meth:`SimulatedDrive.host_stalled`), as the physics does
+scheduler on a loaded machine), the timer thread wakes late, or its few microseconds of work
+take that long; the drives' clock is taken to have stood still for that time (:meth:`SimulatedDrive.host_stalled`), as the physics does
 (its step is clamped). Real drives would not stand still: the master rides out its own stalls
 (``master.py``'s grace after a stall; the heartbeat consumer time 1016h is twice the master's
 period), and the nodes freeze their start-up heap out of the collector
@@ -84,6 +84,7 @@ class SimBus:
         self._timer: threading.Thread | None = None
         self._stop = threading.Event()
         self._wake = threading.Event()
+        self._woken_at = 0.0                  # monotonic: when the timer was last woken
         self.bus_off = False
         self.sync_count = 0
         self.last_sync_time: float | None = None   # monotonic
@@ -106,7 +107,7 @@ class SimBus:
         self._refresh_routes()
         if self.bus is not None:
             drive.power_on()
-            self._wake.set()
+            self._wake_timer()
         return drive
 
     def drive(self, node_id: int) -> SimulatedDrive:
@@ -189,7 +190,7 @@ class SimBus:
             # routes and wake the timer
             self._sync_ids = frozenset(d.sync_cob_id for d in self.drives) or frozenset({0x80})
             self._refresh_routes()
-            self._wake.set()
+            self._wake_timer()
 
     def _refresh_routes(self) -> None:
         routes: dict[int, list[SimulatedDrive]] = {}
@@ -238,16 +239,20 @@ class SimBus:
         age = min(max(time.time() - head.timestamp, 0.0), 1.0)
         return now - age
 
+    def _wake_timer(self) -> None:
+        """Wake the timer thread now, noting when it was asked to run (:meth:`_timer_loop`)."""
+        if not self._wake.is_set():
+            self._woken_at = time.monotonic()
+        self._wake.set()
+
     def _timer_loop(self) -> None:
-        wake_at: float | None = None          # when this thread asked to run again
+        expected: float | None = None         # when this thread was due to run again
         while not self._stop.is_set():
             now = time.monotonic()
-            late = 0.0 if wake_at is None else now - wake_at
-            if late > HOST_STALL_S:
+            if expected is not None and now - expected > HOST_STALL_S:
                 # the host process did not run (a garbage-collector pass, the OS scheduler):
                 # the simulated drives live in it, so their clock stood still too
-                for d in self.drives:
-                    d.host_stalled(late)
+                self._host_stalled(now - expected)
             nxt = now + 0.05
             heard = self._heard_until(now)
             # also in bus-off: the drives' consumer timeouts expire (their sends are dropped)
@@ -256,7 +261,16 @@ class SimBus:
                     nxt = min(nxt, d.tick(now, heard))
                 except Exception:   # noqa: BLE001 - never kill the timer thread
                     log.exception('simulated drive %d timer failed', d.node_id)
-            wake_at = max(nxt, time.monotonic())
-            if self._wake.wait(max(0.0, nxt - time.monotonic())):
-                wake_at = None                # woken by a frame: no deadline to be late for
+            done = time.monotonic()
+            if done - now > HOST_STALL_S:
+                # the ticks take microseconds: the host stood still in the middle of them (the
+                # deadlines were judged at ``now``, before it)
+                self._host_stalled(done - now)
+            deadline = max(nxt, done)
+            woken = self._wake.wait(max(0.0, deadline - time.monotonic()))
             self._wake.clear()
+            expected = min(self._woken_at, deadline) if woken else deadline
+
+    def _host_stalled(self, seconds: float) -> None:
+        for d in self.drives:
+            d.host_stalled(seconds)
