@@ -215,3 +215,39 @@ def test_call_trigger_returns_a_slow_first_answer_not_the_repeat_served_after_it
             e.shutdown(timeout_sec=1.0)
     finally:
         rclpy.shutdown(context=ctx)
+
+
+def test_a_spinner_whose_context_shuts_down_mid_pass_ends_quietly_and_a_live_ones_error_is_raised():
+    """rclpy shut down between the spinner's ``context.ok()`` and its pass: ``spin_once`` raises
+    ``RCLError`` ("the given context is not valid", seen in CI as a thread traceback among
+    pytest's warnings). That is the end of spinning, not a fault; the same error while the
+    context is still valid is one, and is raised."""
+    import threading
+
+    from brace_control.nodes.spin import spin_until
+    from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+
+    class Context:
+        def __init__(self):
+            self.valid = True
+
+        def ok(self):
+            return self.valid
+
+    class Executor:
+        def __init__(self, shuts_down: bool):
+            self.context = Context()
+            self.passes = 0
+            self.shuts_down = shuts_down
+
+        def spin_once(self, timeout_sec=None):
+            self.passes += 1
+            if self.shuts_down:
+                self.context.valid = False
+            raise _rclpy.RCLError('failed to create timer: the given context is not valid')
+
+    closing = Executor(shuts_down=True)
+    spin_until(closing, threading.Event())
+    assert closing.passes == 1
+    with pytest.raises(_rclpy.RCLError):
+        spin_until(Executor(shuts_down=False), threading.Event())
