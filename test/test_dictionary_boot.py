@@ -460,3 +460,45 @@ def test_an_unsigned_analog_input_reads_zero_force_at_mid_scale(tmp_path):
     finally:
         master.shutdown()
         sim.shutdown()
+
+
+# ------------------------------------------------------------------ files that are not ASCII
+
+FAULHABER_CC = EDS / '605.3150.51-V-EK-2-60.eds'
+
+
+def test_a_vendor_file_that_is_not_utf8_is_read_and_refused_for_what_it_lacks():
+    """Faulhaber's 605.3150.51 (test/data/eds/README.md) has byte 94h in its comments: read
+    with UTF-8, as ``canopen`` opens a path here, it is no dictionary at all. It is read, and
+    refused for what the file says (its 6060h range, looked up here by hand)."""
+    raw = FAULHABER_CC.read_bytes()
+    with pytest.raises(UnicodeDecodeError):
+        raw.decode('utf-8')
+    cp = configparser.RawConfigParser()
+    cp.optionxform = str
+    cp.read_string(raw.decode('latin-1'))
+    low, high = int(cp.get('6060', 'LowLimit'), 0), int(cp.get('6060', 'HighLimit'), 0)
+    assert high < 8                                                # no CSP, by the file
+    with pytest.raises(DictionaryError) as err:
+        master_for(config(eds=str(FAULHABER_CC))).plan()
+    text = str(err.value)
+    assert 'not a readable' not in text, text
+    assert f'6060h allows {low}..{high}, not 8' in text and 'cyclic synchronous position' in text, text
+    assert "CC / Faulhaber" in text, text
+
+
+@pytest.mark.parametrize('encoding', ['utf-8-sig', 'cp1252'])
+def test_the_same_dictionary_in_another_encoding_plans_the_same_boot(tmp_path, encoding):
+    """The Nanotec file (UTF-8: its '‰' units) saved by another tool: UTF-8 with a byte-order
+    mark, or Windows-1252 (the '‰' is byte 89h, not UTF-8). The plan's writes are the
+    original file's."""
+    text = NANOTEC.read_bytes().decode('utf-8')
+    assert not text.isascii()
+    copy_ = tmp_path / NANOTEC.name
+    copy_.write_bytes(text.encode(encoding))
+    assert copy_.read_bytes() != NANOTEC.read_bytes()
+
+    def writes(path):
+        plan = master_for(config(eds=str(path), load_cell_object='0x3220:1')).plan()
+        return [[(w.index, w.subindex, w.value) for w in p.writes + p.mapping] for p in plan]
+    assert writes(copy_) == writes(NANOTEC)

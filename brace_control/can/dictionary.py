@@ -11,6 +11,7 @@ opens a bus.
 """
 from __future__ import annotations
 
+import io
 import re
 import struct
 from dataclasses import dataclass
@@ -147,6 +148,27 @@ def lookup(od: canopen.ObjectDictionary, index: int, subindex: int = 0) -> odmod
     return obj.subindices.get(subindex)
 
 
+def _source(path: Path) -> str | io.StringIO:
+    """What ``canopen.import_od`` reads: an EDS/DCF decoded here, whatever the platform's
+    default encoding. CiA 306 files are meant to be ASCII; vendors' tools write UTF-8 (with or
+    without a byte-order mark), Windows-1252 or a DOS code page (Faulhaber's 605.3150.51 spells
+    its town with a code-page-850 umlaut, byte 94h). ``canopen`` opens a path with the locale's encoding, which refuses one of
+    those on every machine. Tried in that order: UTF-8, then Windows-1252, then Latin-1 (which
+    decodes any byte). Other suffixes go to ``canopen`` as the path (its own error names them)."""
+    if path.suffix.lower() not in ('.eds', '.dcf'):
+        return str(path)
+    raw = path.read_bytes()
+    for encoding in ('utf-8-sig', 'cp1252', 'latin-1'):
+        try:
+            text = raw.decode(encoding)
+        except UnicodeDecodeError:
+            continue
+        break
+    source = io.StringIO(text)
+    source.name = str(path)
+    return source
+
+
 class Dictionary:
     """One device's object dictionary (``canopen.import_od``) and what it says of the device.
 
@@ -160,7 +182,7 @@ class Dictionary:
         if not self.path.is_file():
             raise DictionaryReadError(f'EDS/DCF {str(self.path)!r} does not exist')
         try:
-            self.od = canopen.import_od(str(self.path), node_id)
+            self.od = canopen.import_od(_source(self.path), node_id)
         except Exception as exc:  # noqa: BLE001 - configparser, UnicodeDecodeError, KeyError ...
             raise DictionaryReadError(f'{self.path}: not a readable EDS/DCF ({type(exc).__name__}: '
                                       f'{exc})') from exc
