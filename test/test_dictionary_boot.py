@@ -502,3 +502,63 @@ def test_the_same_dictionary_in_another_encoding_plans_the_same_boot(tmp_path, e
         plan = master_for(config(eds=str(path), load_cell_object='0x3220:1')).plan()
         return [[(w.index, w.subindex, w.value) for w in p.writes + p.mapping] for p in plan]
     assert writes(copy_) == writes(NANOTEC)
+
+
+# ------------------------------------------------------------------ the drive's own units (60A8h, 60A9h)
+
+def _file_value(path: Path, section: str, key: str = 'DefaultValue') -> int:
+    cp = configparser.RawConfigParser()
+    cp.optionxform = str
+    cp.read_string(path.read_bytes().decode('latin-1'))
+    return int(cp.get(section, key), 0)
+
+
+def test_a_velocity_unit_per_minute_is_set_to_the_position_unit_per_second_before_any_velocity():
+    """The CL3-E starts in 0.1 degree (60A8h) and rpm (60A9h), by its file: the boot writes
+    60A9h = the position unit per second before 607Fh and 6083h..6085h, which it writes in
+    position units per second, and says that 8192 counts per revolution is not the drive's
+    3600; with 3600 it says they agree."""
+    pos, vel = _file_value(NANOTEC, '60A8'), _file_value(NANOTEC, '60A9')
+    assert (pos >> 16) & 0xFF == 0x41 and (pos >> 24) == 0xFF            # 10^-1 degree
+    assert (vel >> 8) & 0xFF == 0x47                                      # per minute
+    master = master_for(config(**PLANNED['nanotec']))                     # 8192 counts/rev
+    plan = master.plan()[0]
+    order = [w.index for w in plan.writes]
+    unit = next(w for w in plan.writes if w.index == 0x60A9)
+    assert unit.value == (pos & 0xFFFF0000) | 0x0300, hex(unit.value)
+    assert all(order.index(0x60A9) < order.index(i) for i in (0x607F, 0x6083, 0x6084, 0x6085))
+    assert plan.feedforward
+    warnings = [w for w in plan.warnings if '60A8h' in w]
+    assert len(warnings) == 1 and '3600' in warnings[0] and 'encoder_counts_per_rev' in warnings[0], plan.warnings
+    agreeing = copy.deepcopy(dict(BASE))
+    agreeing['can'].update(PLANNED['nanotec'])
+    agreeing['actuator']['encoder_counts_per_rev'] = 3600
+    plan = master_for(DeviceConfig(agreeing, BASE.path)).plan()[0]
+    assert not [w for w in plan.warnings if '60A8h' in w], plan.warnings
+    assert any('60A8h' in n and '3600' in n for n in plan.notes), plan.notes
+
+
+def test_a_velocity_unit_that_cannot_be_set_means_no_feed_forward_and_a_yaml_feed_forward_is_refused(tmp_path):
+    """60A9h read-only at rpm: a velocity offset in counts/s would be read as rpm (a runaway),
+    so the default mapping carries no 60B1h, a warning names 60A9h, and a YAML that maps 60B1h
+    is refused before anything is sent."""
+    eds = edited_eds(tmp_path, NANOTEC, set_={('60A9', 'AccessType'): 'ro'})
+    plan = master_for(config(eds=str(eds), load_cell_object='0x3220:1')).plan()[0]
+    assert not plan.feedforward
+    assert not any(w.index == 0x60A9 for w in plan.writes)
+    assert not any(w.index == 0x1601 and w.subindex and w.value >> 16 == 0x60B1 for w in plan.mapping)
+    assert any('60A9h' in w and '00B44700h' in w for w in plan.warnings), plan.warnings
+    rpdo = {1: {'mapping': ['0x6040:0', '0x607A:0'], 'transmission': 1},
+            2: {'mapping': ['0x60B1:0'], 'transmission': 1}}
+    with pytest.raises(DictionaryError, match=r'60B1h velocity offset in can\.rpdo: 60A9h'):
+        master_for(config(eds=str(eds), load_cell_object='0x3220:1', rpdo=rpdo)).plan()
+
+
+def test_a_drive_in_increments_per_second_is_left_as_it_is():
+    """The ros2_canopen slave has no 60A8h / 60A9h: nothing written, nothing said of units."""
+    raw = canopen.import_od(str(SLAVE), 1)
+    assert raw_var(raw, 0x60A8, 0) is None and raw_var(raw, 0x60A9, 0) is None
+    master = master_for(config(**PLANNED['cia402_slave + CiA 401 module']))
+    for plan in master.plan():
+        assert not any(w.index in (0x60A8, 0x60A9) for w in plan.writes)
+        assert not any('60A8h' in t or '60A9h' in t for t in plan.notes + plan.warnings)

@@ -131,7 +131,8 @@ class BootMixin:
             soft_limits_counts=(tuple(sorted((wire(sc.to_counts(lo)), wire(sc.to_counts(hi)))))
                                 if lo > float('-inf') and hi < float('inf') else None),
             home_offset_counts=None if home is None else wire(sc.to_counts(home)),
-            load_cell=cfg.load_cell_object, rpdo=cfg.rpdo, tpdo=cfg.tpdo)
+            load_cell=cfg.load_cell_object, rpdo=cfg.rpdo, tpdo=cfg.tpdo,
+            counts_per_rev=cfg.counts_per_rev[index] if cfg.counts_per_rev else None)
 
     def sdo_writes(self, index: int) -> list[SdoWrite]:
         """The configuration of drive ``index`` (actuator order) as planned, in write order."""

@@ -26,6 +26,7 @@ plans (:func:`plan_drive`):
 from __future__ import annotations
 
 import functools
+import math
 import struct
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -200,6 +201,7 @@ class BootSettings:
     load_cell: ObjectRef | None             # None: a separate module carries the load cell
     rpdo: Mapping[int, PdoSpec] | None = None
     tpdo: Mapping[int, PdoSpec] | None = None
+    counts_per_rev: int | None = None       # actuator.encoder_counts_per_rev (60A8h check)
 
 
 @dataclass
@@ -366,6 +368,79 @@ def _mapping_writes(d: Dictionary, layouts: Sequence[PdoLayout], direction: str,
     return out
 
 
+#: CiA 402 unit codes in 60A8h / 60A9h (bits 16-23: the unit; bits 8-15: the time base; bits
+#: 24-31: a power of ten), as the drive makers' manuals list them (Nanotec, Synapticon:
+#: 00B44700h is revolutions per minute, FF410000h tenths of a degree)
+SI_UNITS = {0x01: 'm', 0x10: 'rad', 0x41: 'degree', 0xB4: 'revolution'}
+SI_TIMES = {0x03: 's', 0x47: 'min', 0x48: 'h'}
+
+
+def _unit_text(code: int, *, time: bool) -> str:
+    exp = ((code >> 24) & 0xFF) - 256 if (code >> 24) & 0x80 else (code >> 24) & 0xFF
+    unit = (code >> 16) & 0xFF
+    text = SI_UNITS.get(unit, f'unit {unit:02X}h')
+    if time:
+        base = (code >> 8) & 0xFF
+        text += f'/{SI_TIMES.get(base, f"time {base:02X}h")}'
+    return text if exp == 0 else f'10^{exp} {text}'
+
+
+def _drive_units(p: '_Planner', counts_per_rev: int | None = None) -> str | None:
+    """Match the drive's units (60A8h SI unit position, 60A9h SI unit velocity, as the
+    dictionary says it starts) to the master's: positions in encoder increments, velocities in
+    those increments per second (docs/can.md, "Units").
+
+    * A position unit that is an angle or a revolution (Nanotec: FF410000h, tenths of a
+      degree): ``actuator.encoder_counts_per_rev`` must be the drive's units per revolution
+      (3600); a warning where it is not, or cannot be told (radians).
+    * A velocity unit that is not the position unit per second (00B44700h, revolutions per
+      minute, is common) is set to it where 60A9h is writable (60A9h = the position unit with
+      the time base 03h, seconds): 607Fh, 6083h..6085h and the feed-forward 60B1h then mean
+      what the master writes.
+
+    Returns why velocities stay in another unit (60A9h read-only, or no 60A8h to take the
+    position unit from), ``None`` if they do not."""
+    d = p.d
+    pos, vel = d.default(ObjectRef(0x60A8)), d.default(ObjectRef(0x60A9))
+    pos_unit = (pos >> 16) & 0xFF if isinstance(pos, int) else None
+    if pos_unit in SI_UNITS:
+        exp = ((pos >> 24) & 0xFF) - 256 if (pos >> 24) & 0x80 else (pos >> 24) & 0xFF
+        per_rev = {0x41: 360.0, 0xB4: 1.0}.get(pos_unit)
+        per_rev = None if per_rev is None else per_rev / 10 ** exp
+        hint = (f' ({per_rev:g} for this unit)' if per_rev is not None else '')
+        if per_rev is not None and counts_per_rev is not None and math.isclose(counts_per_rev, per_rev):
+            p.notes.append(f'60A8h SI unit position = {pos:08X}h ({_unit_text(pos, time=False)}): '
+                           f'{counts_per_rev} per revolution, as actuator.encoder_counts_per_rev says')
+        else:
+            p.warnings.append(
+                f'60A8h SI unit position = {pos:08X}h ({_unit_text(pos, time=False)}) in the dictionary: '
+                'the master writes and reads positions (607Ah, 6064h, 607Ch, 607Dh, 6065h) as '
+                'actuator.encoder_counts_per_rev units per revolution: that must be the drive\'s units '
+                f'per revolution{hint}, or the drive\'s position unit set to encoder increments (its '
+                'tool, or a DCF)')
+    if not isinstance(vel, int):
+        return None
+    vel_unit, base = (vel >> 16) & 0xFF, (vel >> 8) & 0xFF
+    if base in (0x00, 0x03) and (vel_unit not in SI_UNITS or vel_unit == pos_unit):
+        return None
+    why = (f'60A9h SI unit velocity = {vel:08X}h ({_unit_text(vel, time=True)}) in the dictionary, '
+           'not position units per second')
+    if isinstance(pos, int):
+        value = (pos & 0xFFFF0000) | 0x0300
+        if p.optional(ObjectRef(0x60A9), value,
+                      f'SI unit velocity = {_unit_text(value, time=True)} (the position unit per second; '
+                      f'the dictionary starts at {vel:08X}h, {_unit_text(vel, time=True)})',
+                      'velocities stay in the drive\'s unit'):
+            p.notes.append(f'60A9h SI unit velocity: {value:08X}h written ({_unit_text(value, time=True)}; '
+                           f'the dictionary starts at {vel:08X}h, {_unit_text(vel, time=True)}): 607Fh, '
+                           '6083h..6085h and the feed-forward 60B1h in position units per second')
+            return None
+    p.warnings.append(
+        f'{why}: the master writes 607Fh and 6083h..6085h in increments per second (s^2), which the '
+        'drive reads in its own unit; set 60A9h to the position unit per second (its tool, or a DCF)')
+    return why
+
+
 def plan_drive(d: Dictionary, s: BootSettings) -> BootPlan:
     """Plan one drive's boot (see the module docstring).
 
@@ -404,7 +479,9 @@ def plan_drive(d: Dictionary, s: BootSettings) -> BootPlan:
     if mode is not None and mode.writable and mode.data_type in STRUCT_CODES:
         p.writes.append(SdoWrite(0x6060, 0, STRUCT_CODES[mode.data_type], 8,
                                  'mode: cyclic synchronous position'))
-    # ---- optional configuration (docs/can.md "Bring your own drive")
+    # ---- optional configuration (docs/can.md "Bring your own drive"); the units first: the
+    # velocity objects below are written in them
+    foreign_velocity = _drive_units(p, s.counts_per_rev)
     heartbeat = p.optional(ObjectRef(0x1017), s.drive_heartbeat_ms, 'producer heartbeat time (ms)',
                            'the drive sends no heartbeat the master sets; it is supervised by its '
                            'TPDOs (safety.stale_periods)')
@@ -458,7 +535,7 @@ def plan_drive(d: Dictionary, s: BootSettings) -> BootPlan:
             p.notes.append('607Ch home offset: absent or read-only in the dictionary; the master keeps '
                            'the home offset itself (position = drive counts + offset)')
     # ---- PDOs
-    rpdos, feedback, feedforward = _plan_pdos(p, s)
+    rpdos, feedback, feedforward = _plan_pdos(p, s, foreign_velocity)
     if p.missing:
         optional = [f'{r:04X}h' for r in OPTIONAL if not d.exists(ObjectRef(r, 1 if r in (0x1016, 0x60C2) else 0))]
         raise DictionaryError(
@@ -529,18 +606,28 @@ def _homing_methods(d: Dictionary) -> list[int]:
     return out
 
 
-def _plan_pdos(p: _Planner, s: BootSettings) -> tuple[list[PdoLayout], PdoLayout, bool]:
+def _plan_pdos(p: _Planner, s: BootSettings,
+               foreign_velocity: str | None = None) -> tuple[list[PdoLayout], PdoLayout, bool]:
+    """The PDO layouts and whether the velocity feed-forward (60B1h) is carried.
+    ``foreign_velocity``: why the drive's velocity unit is not increments per second; then no
+    feed-forward (a velocity offset in counts/s read as rpm is a runaway), and a YAML mapping
+    60B1h is refused."""
     d = p.d
     ff_ref = ObjectRef(0x60B1)
     rx = d.pdo_numbers('rpdo')
     tx = d.pdo_numbers('tpdo')
     rspecs = dict(s.rpdo) if s.rpdo else None
+    if rspecs is not None and foreign_velocity and any(ff_ref in spec.mapping for spec in rspecs.values()):
+        p.missing.append(f'60B1h velocity offset in can.rpdo: {foreign_velocity}; the master\'s '
+                         'feed-forward is in increments per second')
     if rspecs is None:
         rspecs = {1: PdoSpec('rpdo', 1, (ObjectRef(0x6040), ObjectRef(0x607A)))}
-        if d.mappable(ff_ref) and d.writable(ff_ref) and 2 in rx and d.mapping_capacity('rpdo', 2) >= 1:
+        if (not foreign_velocity and d.mappable(ff_ref) and d.writable(ff_ref) and 2 in rx
+                and d.mapping_capacity('rpdo', 2) >= 1):
             rspecs[2] = PdoSpec('rpdo', 2, (ff_ref,))
         else:
-            why = ('absent' if not d.exists(ff_ref) else 'not PDO-mappable' if not d.mappable(ff_ref)
+            why = (foreign_velocity if foreign_velocity and d.exists(ff_ref)
+                   else 'absent' if not d.exists(ff_ref) else 'not PDO-mappable' if not d.mappable(ff_ref)
                    else 'read-only' if not d.writable(ff_ref) else 'no RPDO2 to carry it')
             p.notes.append(f'60B1h velocity offset: {why}; no velocity feed-forward: the drive\'s '
                            'position loop lags the plan, and the master\'s following-error check '

@@ -26,7 +26,8 @@ from .pdo import LOAD_CELL_INPUT, TORQUE_ACTUAL
 from .plan import PdoLayout, PdoSpec, pdo_specs
 from .supervision import Fault, Limits, Sample
 from .timing import TimingReport
-from .units import AxisScaling, actuator_kind, counts_ratios, per_actuator, scaling_from_config
+from .units import (AxisScaling, actuator_kind, counts_ratios, encoder_counts, per_actuator,
+                    scaling_from_config)
 
 __all__ = ['MasterState', 'MasterConfig', 'LoadCellModule', 'load_cell_source', 'DriveStatus', 'BusStatus', 'MasterStatus',
            'Feedback', 'interpolation_period']
@@ -92,6 +93,9 @@ class MasterConfig:
     #: gain x force + offset); ``()``: +1, 1.0, 1.0, 0.0 for every drive
     polarity: tuple[int, ...] = ()
     count_ratio: tuple[float, ...] = ()
+    #: per drive: encoder counts per revolution (``actuator.encoder_counts_per_rev``), checked
+    #: against the drive's own position unit (60A8h) at configure; ``()``: not checked
+    counts_per_rev: tuple[int, ...] = ()
     load_gain: tuple[float, ...] = ()
     load_offset: tuple[float, ...] = ()
     sdo_timeout: float = 0.1          # s an SDO answer may take (``can.sdo_timeout``)
@@ -181,7 +185,7 @@ class MasterConfig:
             # linear actuators carry a load cell (2401h by default); rotary drives report
             # 6077h torque actual by default
             load_cell_object=cell, load_cell_module=module, rpdo=rpdo, tpdo=tpdo,
-            polarity=polarity, count_ratio=tuple(counts_ratios(dc)),
+            polarity=polarity, count_ratio=tuple(counts_ratios(dc)), counts_per_rev=tuple(encoder_counts(dc)),
             load_gain=tuple(float(g) for g in per_actuator(dc.get_path('actuator.load_cell_gain'),
                                                             len(node_ids), 'actuator.load_cell_gain')),
             load_offset=tuple(float(o) for o in per_actuator(dc.get_path('actuator.load_cell_offset'),
