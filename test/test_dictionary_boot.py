@@ -562,3 +562,16 @@ def test_a_drive_in_increments_per_second_is_left_as_it_is():
     for plan in master.plan():
         assert not any(w.index in (0x60A8, 0x60A9) for w in plan.writes)
         assert not any('60A8h' in t or '60A9h' in t for t in plan.notes + plan.warnings)
+
+
+def test_a_max_profile_velocity_the_file_will_not_raise_is_a_warning_naming_both_speeds(tmp_path):
+    """607Fh capped at 25000 by the file (maxon's EPOS2 EDS does so, in rpm) and starting
+    there: the master's 0.065 m/s x 8192000 counts/m cannot be written, and the drive's own
+    value is below it; the boot plan warns with both numbers, rather than a note that "the
+    drive's own value applies"."""
+    eds = edited_eds(tmp_path, NANOTEC, set_={('607F', 'HighLimit'): '25000', ('607F', 'DefaultValue'): '25000'})
+    plan = master_for(config(eds=str(eds), load_cell_object='0x3220:1')).plan()[0]
+    wanted = round(float(BASE['actuator']['max_velocity']) * 8192 / float(BASE['actuator']['screw_lead']))
+    assert not any(w.index == 0x607F for w in plan.writes)
+    warning = [w for w in plan.warnings if w.startswith('607Fh')]
+    assert len(warning) == 1 and '25000' in warning[0] and str(wanted) in warning[0], plan.warnings

@@ -510,7 +510,18 @@ def plan_drive(d: Dictionary, s: BootSettings) -> BootPlan:
                              (ObjectRef(0x6083), s.acceleration_counts, 'profile acceleration'),
                              (ObjectRef(0x6084), s.acceleration_counts, 'profile deceleration'),
                              (ObjectRef(0x6085), s.acceleration_counts, 'quick stop deceleration')):
-        p.optional(ref, value, what, "the drive's own value applies")
+        if p.optional(ref, value, what, "the drive's own value applies") or ref.index != 0x607F:
+            continue
+        own = d.default(ref)
+        if isinstance(own, int) and 0 < own < value:
+            # in CSP many drives clamp their targets' speed to 607Fh: motions faster than the
+            # drive's own value lag the plan until the following-error check stops them
+            p.warnings.append(
+                f'607Fh max profile velocity: the drive keeps its own {own} (the dictionary\'s value), '
+                f'below the {value} the plans may use (actuator.max_velocity in position units per '
+                'second, if that is the drive\'s velocity unit): a drive that limits its targets with '
+                'it lags faster motions, and the following-error check stops them; set 607Fh with the '
+                "drive's tool, or lower actuator.max_velocity")
     if s.homing_method:
         _plan_homing(p, s.homing_method)
     soft_limits = False
