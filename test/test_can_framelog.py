@@ -57,6 +57,13 @@ def test_recorded_log_replays_to_the_same_result(tmp_path, suffix, capsys):
     # 1. the file decodes to what the master saw
     offline = BusMonitor([1, 2, 3], scaling).feed(read_frames(path))
     assert offline.syncs > 100
+    # in bus order, each at its send time: canopen's own frames too (SDO requests, NMT; they
+    # once carried python-can's 0.0, which the writers put at the log's first frame's time)
+    frames = list(read_frames(path))
+    assert any(m.arbitration_id == 0 for m in frames) and any(0x601 <= m.arbitration_id <= 0x603 for m in frames)
+    late = [(k, f'{m.arbitration_id:03X}h', round(frames[k - 1].timestamp - m.timestamp, 3))
+            for k, m in enumerate(frames) if k and m.timestamp < frames[k - 1].timestamp - 0.1]
+    assert not late, f'frames stamped before the one logged ahead of them: {late[:5]}'
     # 2. replayed onto a bus with the recorded timing, a passive listener gets the same
     rx_channel = f'{channel}-replay'
     tx = can.Bus(interface='virtual', channel=rx_channel)

@@ -25,6 +25,7 @@ from ..mechanisms.base import warm_up
 from .cia402 import NmtState, OpMode, State402, Statusword
 from .dictionary import Dictionary, DictionaryReadError, ObjectRef
 from .errors import DriverInitializationError, DriverOperationError
+from .frame import StampedNetwork
 from .pdo import SdoWrite
 from .plan import BootPlan, BootSettings, DictionaryError, ModulePlan, plan_drive, plan_module
 from .receive import BusListener
@@ -168,7 +169,7 @@ class BootMixin:
                         f'cannot open CAN bus interface={cfg.interface!r} channel={cfg.channel!r} '
                         f'bitrate={cfg.bitrate}: {exc}') from exc
             self._count_tx = not log_path
-            net = canopen.Network(self._bus)
+            net = StampedNetwork(self._bus)
             net.listeners.append(BusListener(self))
             if log_path:
                 from .framelog import open_frame_log

@@ -11,11 +11,13 @@ real interfaces (``socketcan``) never copy it.
 """
 from __future__ import annotations
 
+import time
 from typing import Any
 
 import can
+import canopen
 
-__all__ = ['Frame']
+__all__ = ['Frame', 'StampedNetwork']
 
 _SLOTS = tuple(s for s in can.Message.__slots__ if s != '__weakref__')
 
@@ -31,3 +33,25 @@ class Frame(can.Message):
             setattr(new, name, getattr(self, name))
         new.data = bytearray(self.data)
         return new
+
+
+class StampedNetwork(canopen.Network):
+    """``canopen.Network`` whose own frames (SDO requests, NMT commands) carry their send time.
+
+    canopen builds them with python-can's default timestamp, 0.0. A ``virtual`` bus opened
+    with ``preserve_timestamps`` (the master's, so that the frame log and the simulated drives
+    see one clock read per SYNC) passes that 0.0 on, and python-can's log writers put such a
+    frame at the log's first frame's time: a log whose last frame is the shutdown's NMT
+    command then seemed to last no time at all, and its replay lost the boot's timing. Every
+    frame the master sends now has the wall-clock time it was sent (as the cycle's own have).
+    """
+
+    def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
+        if not self.bus:
+            raise RuntimeError('Not connected to CAN bus')
+        msg = Frame(is_extended_id=can_id > 0x7FF, arbitration_id=can_id, data=data,
+                    is_remote_frame=remote)
+        with self.send_lock:
+            msg.timestamp = time.time()
+            self.bus.send(msg)
+        self.check()
