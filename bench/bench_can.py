@@ -84,12 +84,13 @@ def master_run(rate: float, seconds: float, channel: str, spin_s: float,
         th.start()
         time.sleep(0.5)                                   # warm-up
         master.stats.reset()
-        f0, b0 = master._rx_frames + master._tx_frames, master._rx_bits + master._tx_bits
+        tr = master.traffic
+        f0, b0 = tr.rx_frames + tr.tx_frames, tr.rx_bits + tr.tx_bits
         t0 = time.perf_counter()
         time.sleep(seconds)
         dt = time.perf_counter() - t0
-        frames = master._rx_frames + master._tx_frames - f0
-        bits = master._rx_bits + master._tx_bits - b0
+        frames = tr.rx_frames + tr.tx_frames - f0
+        bits = tr.rx_bits + tr.tx_bits - b0
         stop.set()
         th.join()
         faults = master.supervisor.summary()

@@ -45,10 +45,10 @@ def wrench_step(trials: int) -> list[int]:
             react = master.supervisor._on_fault
 
             def on_fault(fault, seen=seen, master=master, react=react):
-                seen.append(master._sync_index)
+                seen.append(master.clock.index)
                 react(fault)
             master.supervisor._on_fault = on_fault
-            k0 = master._sync_index
+            k0 = master.clock.index
             for node_id in (1, 2, 3):
                 sim.faults.set_load_cell(node_id, 120.0)
             rigs.wait_for(lambda: master.supervisor.has(FaultKind.WRENCH_LIMIT), 2.0, 'the wrench stop')

@@ -668,26 +668,24 @@ def test_late_answers_in_a_burst_are_attributed_to_consecutive_syncs():
     and positions 4 ms apart would look simultaneous. Counted from the answer to SYNC 10
     they are 11, 12, 13; a drive silent for longer than the attribution window is placed
     by its timestamp again."""
-    from collections import deque
-    m = BraceMaster.__new__(BraceMaster)             # the attribution needs only the SYNC log
+    from brace_control.can.sync import SyncClock
+    clock = SyncClock(attribution_window=25)         # the master's record of the SYNCs it sent
     now = time.time()
-    m._sync_log = deque(maxlen=128)
     for k in range(1, 14):                           # SYNC k sent at now - (13 - k) * 2 ms
-        m._sync_log.append((now - (13 - k) * 0.002, 100.0 + k * 0.002, k))
-    m._sync_index, m._sync_time = 13, 100.0 + 13 * 0.002
-    m.attribution_window = 25
+        clock.log.append((now - (13 - k) * 0.002, 100.0 + k * 0.002, k))
+    clock.index, clock.time = 13, 100.0 + 13 * 0.002
     stamp = now + 0.0005                             # after SYNC 13
     got = []
     previous = 10
     for _ in range(3):
-        index, t = m._answered_sync(stamp, previous)
+        index, t = clock.answered(stamp, previous)
         got.append((index, round(t, 6)))
         previous = index
     assert got == [(11, 100.022), (12, 100.024), (13, 100.026)]
-    assert m._answered_sync(stamp, 13)[0] == 13      # never past the timestamp's SYNC
-    assert m._answered_sync(stamp, None)[0] == 13    # first answer: by timestamp
-    m.attribution_window = 1
-    assert m._answered_sync(stamp, 10)[0] == 13      # silent 2 SYNCs > window: by timestamp
+    assert clock.answered(stamp, 13)[0] == 13        # never past the timestamp's SYNC
+    assert clock.answered(stamp, None)[0] == 13      # first answer: by timestamp
+    clock.attribution_window = 1
+    assert clock.answered(stamp, 10)[0] == 13        # silent 2 SYNCs > window: by timestamp
 
 
 # ---------------------------------------------------------------------------- planned motions

@@ -193,10 +193,10 @@ def test_a_wrench_step_latches_within_two_sync_periods():
         react = master.supervisor._on_fault
 
         def on_fault(fault):
-            latched_at.append((fault.kind, master._sync_index))
+            latched_at.append((fault.kind, master.clock.index))
             react(fault)
         master.supervisor._on_fault = on_fault
-        k0 = master._sync_index
+        k0 = master.clock.index
         for node_id in (1, 2, 3):
             sim.faults.set_load_cell(node_id, 120.0)
         wait_for(lambda: master.supervisor.has(FaultKind.WRENCH_LIMIT), 2.0, 'the wrench stop')

@@ -168,9 +168,9 @@ class BootMixin:
                     raise DriverInitializationError(
                         f'cannot open CAN bus interface={cfg.interface!r} channel={cfg.channel!r} '
                         f'bitrate={cfg.bitrate}: {exc}') from exc
-            self._count_tx = not log_path
+            self.traffic.count_tx = not log_path
             net = StampedNetwork(self._bus)
-            net.listeners.append(BusListener(self))
+            net.listeners.append(BusListener(self.receiver))
             if log_path:
                 from .framelog import open_frame_log
                 self._frame_log = open_frame_log(log_path)
@@ -182,9 +182,10 @@ class BootMixin:
                             heartbeat=mp.heartbeat, tpdo=mp.tpdo,
                             zeros=tuple(LoadInput.of(e.code).zero for e in mp.tpdo.entries))
                 self._module = m
-                net.subscribe(mp.tpdo.cob_id, self._module_callback(m))
+                net.subscribe(mp.tpdo.cob_id, self.receiver.module_callback(m))
                 self._subscribe_node(net, m)
             self._drives = []
+            self.receiver.attach(self._drives, self._module)   # filled below, in place
             for i, (name, plan) in enumerate(zip(cfg.names, self.plans)):
                 node = self._remote(net, plan.node_id, plan.dictionary)
                 zero = 0
@@ -197,7 +198,7 @@ class BootMixin:
                            load_gain=cfg.load_gain[i] if cfg.load_gain else 1.0,
                            load_offset=cfg.load_offset[i] if cfg.load_offset else 0.0)
                 self._drives.append(d)
-                net.subscribe(plan.feedback.cob_id, self._tpdo_callback(d, plan.feedback))
+                net.subscribe(plan.feedback.cob_id, self.receiver.tpdo_callback(d, plan.feedback))
                 self._subscribe_node(net, d)
             self._saturation_span()
             net.connect()
@@ -220,8 +221,8 @@ class BootMixin:
         return node
 
     def _subscribe_node(self, net: canopen.Network, n: _Node) -> None:
-        net.subscribe(0x700 + n.node_id, self._heartbeat_callback(n))
-        net.subscribe(0x80 + n.node_id, self._emcy_callback(n))
+        net.subscribe(0x700 + n.node_id, self.receiver.heartbeat_callback(n))
+        net.subscribe(0x80 + n.node_id, self.receiver.emcy_callback(n))
 
     def _saturation_span(self) -> None:
         """The saturation threshold within what every load-cell input can show."""

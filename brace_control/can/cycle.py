@@ -86,9 +86,7 @@ class CycleMixin:
                 still_present=lambda: self._last_send_failed)
             return False
         self._last_send_failed = False
-        if self._count_tx:
-            self._tx_frames += 1
-            self._tx_bits += frame_bits(msg.dlc)
+        self.traffic.sent(msg.dlc)
         return True
 
     def _cycle(self, k: int, t_wake: float) -> None:
@@ -99,7 +97,7 @@ class CycleMixin:
             if self._heartbeat_on:
                 self._send(self._hb_msg)
         if k % 256 == 0:
-            self._update_rates(t_wake)
+            self.traffic.update_rates(t_wake)
         if not self._pdo_running:
             self._last_wake = t_wake
             return
@@ -162,13 +160,10 @@ class CycleMixin:
                 if data != d.rpdo_sent[j] or refresh:
                     self._send(Frame(arbitration_id=lay.cob_id, data=data, is_extended_id=False))
                     d.rpdo_sent[j] = data
-            d.sent.append((self._sync_index + 1, d.target))     # for the SYNC sent next
-        # the TPDOs answering this SYNC may arrive before send() returns: stamp first
-        self._sync_time = time.perf_counter()
-        self._sync_index += 1
-        wall = time.time()
-        self._sync_msg.timestamp = wall          # the frame carries the time the log keeps
-        self._sync_log.append((wall, self._sync_time, self._sync_index))
+            d.sent.append((self.clock.index + 1, d.target))     # for the SYNC sent next
+        # the TPDOs answering this SYNC may arrive before send() returns: stamp first; the
+        # frame carries the time the log keeps
+        self._sync_msg.timestamp = self.clock.stamp()
         self._send(self._sync_msg)
 
     # ------------------------------------------------------------------ the command

@@ -9,7 +9,11 @@ The master is made of seams, one module each:
 
 * :mod:`.state` — configuration, states and snapshots;
 * :mod:`.boot` — bus, NMT, SDO configuration, PDO mapping, homing;
-* :mod:`.receive` — TPDO1 samples and the SYNC they answer, heartbeats, EMCY, error frames;
+* :mod:`.sync` — :class:`~.sync.SyncClock`, a part with its own state: the SYNCs sent and
+  which one a drive's answer belongs to;
+* :mod:`.receive` — :class:`~.receive.Receiver`, a part with its own state: TPDO1 samples,
+  heartbeats, EMCY, error frames (canopen's Notifier thread), and
+  :class:`~.receive.BusTraffic`, the bus counters;
 * :mod:`.cycle` — the SYNC cycle: monitors, command, RPDO1 + RPDO2, SYNC;
 * :mod:`.execution` — the commanded motion: a planned trajectory sampled at every SYNC
   (quintic Hermite, one time base for all axes, time scaling to slow down), or the
@@ -46,7 +50,6 @@ import logging
 import math
 import threading
 import time
-from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -62,13 +65,14 @@ from .errors import (DriverInitializationError, DriverOperationError, DriverTime
 from ..control.execution import ActuatorTrajectory, ExecutionEvent, ExecutionState, PathExecutor
 from .frame import Frame
 from .monitors import MonitorMixin
-from .receive import ReceiveMixin
+from .receive import BusTraffic, Receiver
 from .monitors import NO_FEEDFORWARD_LAG_S, RELIEVABLE, platform_tiers
 from .plan import BootPlan, ModulePlan
 from ..safety import ForcePrediction
 from .state import (BusStatus, DriveStatus, Feedback, MasterConfig, MasterState, MasterStatus,
-                    Relief, TakeUp, _Drive, _Module, _Setpoint)
+                    Relief, TakeUp, _Drive, _Module, _Node, _Setpoint)
 from .supervision import Fault, FaultKind, Supervisor
+from .sync import SyncClock
 from .timing import PeriodStats
 
 __all__ = ['BraceMaster', 'MasterConfig', 'MasterState', 'DriveStatus', 'BusStatus',
@@ -86,7 +90,7 @@ RELIEF_CONFIRM_S = 0.05
 TAKE_UP_LAG_SYNCS = 3
 
 
-class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
+class BraceMaster(BootMixin, MonitorMixin, CycleMixin):
     """CiA 402 master of one device's drives (see the module docstring).
 
     :param config: :class:`MasterConfig` (``MasterConfig.from_device_config(cfg)``).
@@ -172,49 +176,27 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
         self.rejected_setpoints = 0
         self.homed = False
         self._recover_time = -math.inf
-        # SYNC bookkeeping
-        self._sync_index = 0
-        self._sync_time = 0.0
-        # (wall clock, perf_counter, index) of recent SYNCs: a TPDO is attributed to the
-        # SYNC it answered by its bus timestamp, not by when our thread got to it
-        self._sync_log: deque[tuple[float, float, int]] = deque(maxlen=128)
-        #: the most SYNCs a TPDO1 may answer late and still be counted (see _answered_sync)
-        self.attribution_window = 25
-        self._tpdo_total = 0
-        #: bus timestamp (wall clock) of the newest frame received from a drive
-        self._rx_wall = -math.inf
+        #: the SYNCs sent (the cycle stamps them; a TPDO is attributed to the SYNC it
+        #: answered by its bus timestamp, not by when our thread got to it)
+        self.clock = SyncClock()
+        #: frames and bits both ways, the bus load, the controller's error state
+        self.traffic = BusTraffic(config.bitrate)
+        #: the receive side: samples, heartbeats, EMCY, error frames (canopen's Notifier thread)
+        self.receiver = Receiver(config, self.clock, self.traffic, self.supervisor,
+                                 supervising=lambda: self._supervising, rebooted=self._drive_rebooted,
+                                 nmt_not_operational=self._nmt_not_operational,
+                                 emcy_present=self._emcy_present)
         self._last_wake = 0.0
         self._loads_stamp: int | None = None     # the SYNC the load tiers last judged
         self._grace_until = 0.0               # monotonic: after a host stall of this process
         self._hb_period = config.master_heartbeat_ms * 1e-3
         self._next_hb = 0.0
-        #: all drives silent for this many SYNCs -> stale (one silent drive: stale_periods).
-        #: From the master alone, "every drive silent" cannot be told from "this process
-        #: did not get to receive", so the bound is the drives' own consumer time of our
-        #: heartbeat (1016h = 2 x master_heartbeat_ms): by then they quick-stop themselves.
-        self.all_silent_periods = max(config.limits.stale_periods,
-                                      math.ceil(2 * config.master_heartbeat_ms * 1e-3 / config.period))
-        #: (COB-ID, monotonic, count) of the last SYNC or master heartbeat another node sent
-        self._foreign_master: tuple[int, float, int] | None = None
-        self._own_heartbeat_id = 0x700 + config.master_node_id
         self._heartbeat_on = False             # produced once the boot found no other master
         self._hb_msg = Frame(arbitration_id=0x700 + config.master_node_id,
                                    data=bytes([NmtState.OPERATIONAL]), is_extended_id=False)
         self._sync_msg = Frame(arbitration_id=_SYNC_ID, data=b'', is_extended_id=False)
-        # bus statistics
-        self._rx_frames = 0
-        self._rx_bits = 0
-        self._tx_frames = 0
-        self._tx_bits = 0
-        self._rate = (0.0, 0.0)                # frames/s, load
-        self._rate_mark = (time.perf_counter(), 0, 0)
-        self._count_tx = True                 # False when own frames come back (frame log)
-        self.error_frames = 0
         self.send_failures = 0
         self._last_send_failed = False
-        self._bus_error_state = 'active'
-        self._bus_off_time = -math.inf
-        self._bus_restart_time = -math.inf
 
     # ------------------------------------------------------------------ construction
 
@@ -345,6 +327,29 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
         no ``safety.max_wrench``, or not solved yet)."""
         tiers = self.platform_tiers
         return None if tiers is None else tiers.platform.pose.copy()
+
+    # ------------------------------------------------------------------ what was received
+    def feedback(self) -> Feedback:
+        """Positions (m), velocities (m/s), load-cell forces (N) in actuator order: one
+        consistent snapshot (:meth:`.receive.Receiver.feedback`)."""
+        return self.receiver.feedback()
+
+    def heartbeat_age(self, d: _Node) -> float:
+        """s since node ``d``'s last heartbeat, on the bus's clock (docs/safety.md §4)."""
+        return self.receiver.heartbeat_age(d)
+
+    def foreign_master(self) -> str:
+        """What another master on the bus was heard sending ('' if nothing)."""
+        return self.receiver.foreign_master()
+
+    @property
+    def error_frames(self) -> int:
+        """CAN error frames received since the bus opened."""
+        return self.traffic.error_frames
+
+    def _drive_rebooted(self) -> None:
+        """A supervised drive sent a boot-up: its configuration and homing are gone."""
+        self.homed = False
 
     def _checked_positions(self, positions: Sequence[float], what: str) -> np.ndarray:
         arr = np.asarray(positions, dtype=float)
@@ -653,7 +658,7 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
                     except DriverInitializationError as exc:
                         log.error('recover: %s', exc)
             if restarted:
-                start = self._tpdo_total
+                start = self.receiver.tpdo_total
                 self._wait(lambda: all(d.nmt == NmtState.OPERATIONAL and (d.rx_total > start or d is self._module)
                                        for d in restarted),
                            timeout=max(0.5, 4 * self.config.drive_heartbeat_ms * 1e-3),
@@ -695,9 +700,10 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
             drives.append(DriveStatus(
                 d.name, d.node_id, nmt, d.state, s.statusword if s else 0,
                 s.position if s else math.nan, d.velocity, s.force if s else math.nan,
-                self.scaling.to_si(d.target), self.heartbeat_age(d), emcy, d.samples))
-        frames, load = self._rate
-        bus = BusStatus(frames, load, self._bus_error_state, self.error_frames, self.send_failures)
+                self.scaling.to_si(d.target), self.receiver.heartbeat_age(d), emcy, d.samples))
+        traffic = self.traffic
+        frames, load = traffic.rate
+        bus = BusStatus(frames, load, traffic.error_state, traffic.error_frames, self.send_failures)
         return MasterStatus(self.state, tuple(drives), bus, self.stats.report(),
                             self.supervisor.faults, tuple(w.message for w in self.supervisor.warnings),
                             self.stale_setpoint_holds, self.homed, self.accepted_setpoints,
@@ -772,9 +778,10 @@ class BraceMaster(BootMixin, ReceiveMixin, MonitorMixin, CycleMixin):
         return self.scaling.to_counts(d.sample.position) if d.sample is not None else d.target
 
     def _wait_syncs(self, n: int, timeout: float = 1.0) -> None:
-        target = self._sync_index + n
+        clock = self.clock
+        target = clock.index + n
         end = time.monotonic() + timeout
-        while self._sync_index < target and time.monotonic() < end:
+        while clock.index < target and time.monotonic() < end:
             time.sleep(self.config.period / 2)
         time.sleep(self.config.period)       # the answer to that SYNC
 

@@ -92,18 +92,19 @@ class MonitorMixin:
         Judged on what was received, in bus order, so a receive thread (or a simulator)
         that runs late does not make a drive look silent: ``d`` is stale when the other
         drives have sent ``stale_periods`` TPDO1 each since its last one, or when every
-        drive has been silent for :attr:`all_silent_periods` SYNCs (bus, wiring, or a
-        host too loaded to receive: heartbeat and error-frame supervision cover those too).
+        drive has been silent for ``all_silent_periods`` SYNCs (:class:`.receive.Receiver`:
+        bus, wiring, or a host too loaded to receive: heartbeat and error-frame supervision
+        cover those too).
         """
         s = d.sample
         if s is None:
             return True
         n = self.limits.stale_periods
         others = len(self._drives) - 1
-        if others and self._tpdo_total - d.rx_total >= n * others:
+        if others and self.receiver.tpdo_total - d.rx_total >= n * others:
             return True
-        return timed and (self._sync_index - s.sync_index >= self.all_silent_periods
-                and time.perf_counter() - d.rx_time > self.all_silent_periods * self.config.period)
+        return timed and (self.clock.index - s.sync_index >= self.receiver.all_silent_periods
+                and time.perf_counter() - d.rx_time > self.receiver.all_silent_periods * self.config.period)
 
     def _sample_condition(self, d: _Drive, kind: FaultKind) -> Callable[[], bool]:
         def present() -> bool:
@@ -149,9 +150,9 @@ class MonitorMixin:
                 self.supervisor.report(
                     FaultKind.STALE_FEEDBACK,
                     f'no TPDO1 (position, load cell) from node {d.node_id} for '
-                    f'{self._sync_index - s.sync_index} SYNC periods (the other drives answered)'
-                    if self._tpdo_total - d.rx_total >= self.limits.stale_periods * max(1, len(self._drives) - 1)
-                    else f'no TPDO1 from any drive for {self._sync_index - s.sync_index} SYNC periods',
+                    f'{self.clock.index - s.sync_index} SYNC periods (the other drives answered)'
+                    if self.receiver.tpdo_total - d.rx_total >= self.limits.stale_periods * max(1, len(self._drives) - 1)
+                    else f'no TPDO1 from any drive for {self.clock.index - s.sync_index} SYNC periods',
                     drive=name,
                     still_present=lambda d=d: self._stale(d))
             if s is d.checked:
@@ -253,12 +254,12 @@ class MonitorMixin:
         elif m.nmt is not None and m.nmt != NmtState.OPERATIONAL:
             self.supervisor.report(FaultKind.NMT_STATE, f'node {m.node_id} reports NMT state {m.nmt}',
                                    drive=who, still_present=self._nmt_not_operational(m))
-        behind = self._tpdo_total - m.rx_total
+        behind = self.receiver.tpdo_total - m.rx_total
         if behind >= limits.stale_periods * len(self._drives) and not in_grace:
             self.supervisor.report(
                 FaultKind.STALE_FEEDBACK, f'no TPDO (load cells) from node {m.node_id} while the drives '
                 f'sent {behind}', drive=who,
-                still_present=lambda: self._tpdo_total - m.rx_total >= limits.stale_periods * len(self._drives))
+                still_present=lambda: self.receiver.tpdo_total - m.rx_total >= limits.stale_periods * len(self._drives))
 
     def _commanded_for(self, d: _Drive, s: Sample) -> int:
         """The target (counts) a sample is judged against: of the targets sent from two SYNCs

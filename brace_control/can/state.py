@@ -311,7 +311,7 @@ class _Node:
     rx_time: float = -math.inf             # perf_counter of the last TPDO
     rx_total: int = 0                      # master's TPDO count at this node's last TPDO
     hb_time: float = -math.inf             # monotonic of the last heartbeat / boot-up
-    hb_wall: float = -math.inf             # its bus timestamp (wall clock; see _bus_time)
+    hb_wall: float = -math.inf             # its bus timestamp (wall clock; see Receiver.bus_time)
     nmt: int | None = None
     booted: threading.Event = field(default_factory=threading.Event)
     emcy: tuple[int, int, float] | None = None     # code, register, monotonic
