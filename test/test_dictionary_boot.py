@@ -575,3 +575,60 @@ def test_a_max_profile_velocity_the_file_will_not_raise_is_a_warning_naming_both
     assert not any(w.index == 0x607F for w in plan.writes)
     warning = [w for w in plan.warnings if w.startswith('607Fh')]
     assert len(warning) == 1 and '25000' in warning[0] and str(wanted) in warning[0], plan.warnings
+
+
+# ------------------------------------------------------------------ PDOs the dictionary fixes
+
+def _read_only(values: dict[str, str | None]) -> dict[tuple[str, str], str]:
+    """``edited_eds`` settings: each section read-only, at the value given (``None``: as it is)."""
+    out = {}
+    for section, value in values.items():
+        out[(section, 'AccessType')] = 'ro'
+        if value is not None:
+            out[(section, 'DefaultValue')] = value
+    return out
+
+
+def test_fixed_pdos_that_carry_what_the_master_needs_are_used_as_the_drive_has_them(tmp_path):
+    """TPDO1 fixed (1A00h read-only) with the position, the load cell and the statusword in its
+    own order, RPDO1 fixed, both COB-IDs read-only: nothing of them is written (the simulated
+    drives abort a write to a read-only object, as CiA 301 says), the feedback is decoded in
+    the drive's order, and the brace moves to the IK of the goal on the simulator's truth."""
+    eds = edited_eds(tmp_path, NANOTEC, set_=_read_only({
+        '1A00sub0': '3', '1A00sub1': '0x60640020', '1A00sub2': '0x32200110', '1A00sub3': '0x60410010',
+        '1600sub0': '2', '1600sub1': '0x60400010', '1600sub2': '0x607A0020',
+        '1800sub1': '$NODEID+0x180', '1400sub1': '$NODEID+0x200'}))
+    cfg = config(eds=str(eds), load_cell_object='0x3220:1')
+    plan = master_for(cfg).plan()[0]
+    written = {(w.index, w.subindex) for w in plan.writes + plan.mapping}
+    for index in (0x1A00, 0x1600):
+        assert not any(i == index for i, _ in written), sorted(written)
+    assert (0x1800, 1) not in written and (0x1400, 1) not in written
+    assert plan.feedback.roles == ('position', 'load', 'statusword')
+    sim, master, _ = _rig(cfg)
+    try:
+        master.boot()
+        _move_and_check(sim, master)
+        np.testing.assert_allclose(master.feedback().force, sim.truth().forces, atol=4 * 0.05 + 0.01)
+    finally:
+        master.shutdown()
+        sim.shutdown()
+
+
+@pytest.mark.parametrize('fixed, named', [
+    ({'1A00sub0': '2', '1A00sub1': '0x60410010', '1A00sub2': '0x60610008'},
+     ['1A00h read-only', '60410010h, 60610008h']),
+    ({'1800sub2': '0xFF'}, ['1800h:2 is read-only at 255', 'can.tpdo.1.transmission = 1']),
+    ({'1800sub1': '0x80000181'}, ['1800h:1 is read-only', 'invalid (80000181h)']),
+])
+def test_a_fixed_pdo_that_cannot_serve_is_refused_before_anything_is_sent(tmp_path, fixed, named):
+    """A fixed TPDO1 without the position and the load cell, a fixed event-driven transmission
+    type, a fixed invalid COB-ID: the configure step refuses, naming the object and what the
+    file fixes it at."""
+    eds = edited_eds(tmp_path, NANOTEC, set_=_read_only(fixed))
+    with pytest.raises(DictionaryError) as err:
+        master_for(config(eds=str(eds), load_cell_object='0x3220:1')).plan()
+    text = str(err.value)
+    for part in named:
+        assert part in text, (part, text)
+    assert 'Nothing was sent' in text

@@ -82,6 +82,9 @@ class PdoLayout:
     transmission: int
     entries: tuple[PdoEntry, ...]
     flags: int = 0            # bits 29/30 of the COB-ID as the dictionary has them
+    #: what the dictionary fixes (read-only) and the boot therefore leaves as the drive has it:
+    #: the mapping (it already is ``entries``), the transmission type, the COB-ID
+    fixed: frozenset[str] = frozenset()
 
     @property
     def name(self) -> str:
@@ -109,17 +112,26 @@ class PdoLayout:
         return roles.index(role) if role in roles else None
 
     def writes(self) -> list[SdoWrite]:
-        """The CiA 301 mapping procedure for this PDO."""
+        """The CiA 301 mapping procedure for this PDO, without what the dictionary fixes
+        (:attr:`fixed`: a read-only mapping already carries the entries, a read-only
+        transmission type or COB-ID already has the value planned)."""
         c, m, n = self.comm_index, self.map_index, self.name
-        out = [SdoWrite(c, 1, 'I', _INVALID | self.flags | self.cob_id, f'{n} COB-ID (disabled for mapping)'),
-               SdoWrite(m, 0, 'B', 0, f'{n} mapping count = 0')]
-        for i, e in enumerate(self.entries, 1):
-            out.append(SdoWrite(m, i, 'I', e.mapping_value, f'{n} entry {i}: {e.ref}'
-                                + (f' ({e.role})' if e.role else '')))
-        out += [SdoWrite(m, 0, 'B', len(self.entries), f'{n} mapping count = {len(self.entries)}'),
-                SdoWrite(c, 2, 'B', self.transmission, f'{n} transmission type {self.transmission}'
-                         + (' (SYNC)' if 1 <= self.transmission <= 240 or self.transmission == 0 else '')),
-                SdoWrite(c, 1, 'I', self.flags | self.cob_id, f'{n} COB-ID (valid)')]
+        cob, remap = 'cob_id' not in self.fixed, 'mapping' not in self.fixed
+        out = []
+        if remap:
+            if cob:
+                out.append(SdoWrite(c, 1, 'I', _INVALID | self.flags | self.cob_id,
+                                    f'{n} COB-ID (disabled for mapping)'))
+            out.append(SdoWrite(m, 0, 'B', 0, f'{n} mapping count = 0'))
+            for i, e in enumerate(self.entries, 1):
+                out.append(SdoWrite(m, i, 'I', e.mapping_value, f'{n} entry {i}: {e.ref}'
+                                    + (f' ({e.role})' if e.role else '')))
+            out.append(SdoWrite(m, 0, 'B', len(self.entries), f'{n} mapping count = {len(self.entries)}'))
+        if 'transmission' not in self.fixed:
+            out.append(SdoWrite(c, 2, 'B', self.transmission, f'{n} transmission type {self.transmission}'
+                                + (' (SYNC)' if 1 <= self.transmission <= 240 or self.transmission == 0 else '')))
+        if cob:
+            out.append(SdoWrite(c, 1, 'I', self.flags | self.cob_id, f'{n} COB-ID (valid)'))
         return out
 
 
@@ -329,9 +341,69 @@ def _layout(p: _Planner, spec: PdoSpec, node_id: int, roles: Mapping[ObjectRef, 
         p.missing.append(f'{where}.cob_id: PDO {spec.number} has no pre-defined COB-ID and the '
                          'dictionary gives none; set it')
         ok = False
+    fixed: set[str] = set()
+    if ok:
+        ok, entries, cob = _fixed_parts(p, spec, entries, int(cob), fixed)
     if not ok:
         return None
-    return PdoLayout(spec.direction, spec.number, int(cob), spec.transmission, tuple(entries), flags)
+    return PdoLayout(spec.direction, spec.number, int(cob), spec.transmission, tuple(entries), flags,
+                     frozenset(fixed))
+
+
+def _fixed_parts(p: _Planner, spec: PdoSpec, entries: list[PdoEntry], cob: int,
+                 fixed: set[str]) -> tuple[bool, list[PdoEntry], int]:
+    """What the dictionary fixes of this PDO (read-only objects), checked against the plan:
+    a fixed mapping must carry the planned objects (in its own order, which the decoding then
+    follows), a fixed transmission type must be the planned one, a fixed COB-ID must be valid
+    (and is the one used). Adds to ``fixed`` what the boot leaves alone; errors go to
+    ``p.missing``. Returns (ok, the entries in the drive's order, the COB-ID)."""
+    d, where, name = p.d, spec.key, f'{spec.direction.upper()}{spec.number}'
+    comm = (0x1400 if spec.direction == 'rpdo' else 0x1800) + spec.number - 1
+    mapping = (0x1600 if spec.direction == 'rpdo' else 0x1A00) + spec.number - 1
+    ok = True
+    subs = [ObjectRef(mapping, i) for i in range(len(entries) + 1)]
+    if not all(d.writable(r) for r in subs):
+        count = d.default(ObjectRef(mapping, 0))
+        count = count if isinstance(count, int) else 0
+        have = [d.default(ObjectRef(mapping, i)) for i in range(1, count + 1)]
+        by_value = {e.mapping_value: e for e in entries}
+        text = ', '.join(f'{v:08X}h' if isinstance(v, int) else '?' for v in have) or 'nothing'
+        if sorted(by_value) == sorted(v for v in have if isinstance(v, int)) and len(have) == len(entries):
+            entries = [by_value[v] for v in have]
+            fixed.add('mapping')
+            p.notes.append(f'{mapping:04X}h {name} mapping: read-only in the dictionary, fixed at '
+                           f'{text}: used as the drive has it')
+        else:
+            want = ', '.join(f'{e.mapping_value:08X}h' for e in entries)
+            p.missing.append(f'{where}: the drive\'s {name} mapping is fixed ({mapping:04X}h read-only) at '
+                             f'{text}, not {want}; map what it carries ({where}.mapping), or use '
+                             'another PDO')
+            ok = False
+    tx_ref = ObjectRef(comm, 2)
+    if d.exists(tx_ref) and not d.writable(tx_ref):
+        have = d.default(tx_ref)
+        if have == spec.transmission:
+            fixed.add('transmission')
+        else:
+            p.missing.append(f'{where}.transmission = {spec.transmission}: {comm:04X}h:2 is read-only at '
+                             f'{have} in the dictionary')
+            ok = False
+    cob_ref = ObjectRef(comm, 1)
+    if d.exists(cob_ref) and not d.writable(cob_ref):
+        have = d.default(cob_ref)
+        if not isinstance(have, int) or have & _INVALID:
+            p.missing.append(f'{name}: its COB-ID {comm:04X}h:1 is read-only and '
+                             + ('not given' if not isinstance(have, int) else f'invalid ({have:08X}h)')
+                             + ' in the dictionary: the PDO cannot be used')
+            ok = False
+        elif spec.cob_id and spec.cob_id != have & 0x7FF:
+            p.missing.append(f'{where}.cob_id = {spec.cob_id:03X}h: {comm:04X}h:1 is read-only at '
+                             f'{have & 0x7FF:03X}h in the dictionary')
+            ok = False
+        else:
+            fixed.add('cob_id')
+            cob = have & 0x7FF
+    return ok, entries, cob
 
 
 def _mapping_writes(d: Dictionary, layouts: Sequence[PdoLayout], direction: str,
