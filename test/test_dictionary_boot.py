@@ -632,3 +632,38 @@ def test_a_fixed_pdo_that_cannot_serve_is_refused_before_anything_is_sent(tmp_pa
     for part in named:
         assert part in text, (part, text)
     assert 'Nothing was sent' in text
+
+
+def test_pdo_mappings_in_compact_storage_are_planned_to_their_declared_size(tmp_path):
+    """CiA 306 compact storage: the RPDO1 and TPDO1 mapping arrays as ``CompactSubObj=8`` with
+    no sub-index sections (a tool's way of writing them). The plan maps RPDO1 with two entries
+    and TPDO1 with three, as with the sections written out, and the brace moves on the
+    simulated drives built from the same file."""
+    cp = configparser.RawConfigParser()
+    cp.optionxform = str
+    cp.read_string(NANOTEC.read_bytes().decode('utf-8'))
+    for index in ('1600', '1A00'):
+        subs = [s for s in cp.sections() if s.upper().startswith(f'{index}SUB')]
+        assert len(subs) - 1 == 8, subs                          # the file's 8 entries
+        for section in subs:
+            cp.remove_section(section)
+        cp.remove_option(index, 'SubNumber')
+        for key, value in (('ObjectType', '0x8'), ('CompactSubObj', '8'), ('DataType', '0x0007'),
+                           ('AccessType', 'rw'), ('PDOMapping', '0')):
+            cp.set(index, key, value)
+    eds = tmp_path / 'compact_CL3-E-2-0F.eds'
+    with open(eds, 'w', encoding='utf-8') as f:
+        cp.write(f)
+    cfg = config(eds=str(eds), load_cell_object='0x3220:1')
+    plan = master_for(cfg).plan()[0]
+    entries = {index: [w.value for w in plan.mapping if w.index == index and w.subindex > 0 and w.value]
+               for index in (0x1600, 0x1A00)}
+    assert entries[0x1600] == [0x60400010, 0x607A0020], entries
+    assert entries[0x1A00] == [0x60410010, 0x60640020, 0x32200110], entries
+    sim, master, _ = _rig(cfg)
+    try:
+        master.boot()
+        _move_and_check(sim, master)
+    finally:
+        master.shutdown()
+        sim.shutdown()

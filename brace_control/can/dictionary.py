@@ -11,6 +11,7 @@ opens a bus.
 """
 from __future__ import annotations
 
+import configparser
 import io
 import re
 import struct
@@ -148,15 +149,16 @@ def lookup(od: canopen.ObjectDictionary, index: int, subindex: int = 0) -> odmod
     return obj.subindices.get(subindex)
 
 
-def _source(path: Path) -> str | io.StringIO:
-    """What ``canopen.import_od`` reads: an EDS/DCF decoded here, whatever the platform's
-    default encoding. CiA 306 files are meant to be ASCII; vendors' tools write UTF-8 (with or
-    without a byte-order mark), Windows-1252 or a DOS code page (Faulhaber's 605.3150.51 spells
-    its town with a code-page-850 umlaut, byte 94h). ``canopen`` opens a path with the locale's encoding, which refuses one of
-    those on every machine. Tried in that order: UTF-8, then Windows-1252, then Latin-1 (which
-    decodes any byte). Other suffixes go to ``canopen`` as the path (its own error names them)."""
+def _source(path: Path) -> tuple[str | io.StringIO, str | None]:
+    """What ``canopen.import_od`` reads, and the file's text: an EDS/DCF decoded here,
+    whatever the platform's default encoding. CiA 306 files are meant to be ASCII; vendors'
+    tools write UTF-8 (with or without a byte-order mark), Windows-1252 or a DOS code page
+    (Faulhaber's 605.3150.51 spells its town with a code-page-850 umlaut, byte 94h).
+    ``canopen`` opens a path with the locale's encoding, which refuses one of those on every
+    machine. Tried in that order: UTF-8, then Windows-1252, then Latin-1 (which decodes any
+    byte). Other suffixes go to ``canopen`` as the path (its own error names them)."""
     if path.suffix.lower() not in ('.eds', '.dcf'):
-        return str(path)
+        return str(path), None
     raw = path.read_bytes()
     for encoding in ('utf-8-sig', 'cp1252', 'latin-1'):
         try:
@@ -166,7 +168,34 @@ def _source(path: Path) -> str | io.StringIO:
         break
     source = io.StringIO(text)
     source.name = str(path)
-    return source
+    return source, text
+
+
+def _expand_compact_arrays(od: canopen.ObjectDictionary, text: str) -> None:
+    """CiA 306 compact storage (``CompactSubObj=n`` in an array's section, no sub-index
+    sections): ``canopen`` keeps only sub-index 1 as a template. Add sub-indices 2..n made from
+    it, so the array has the n entries the file declares (a PDO mapping's capacity, what the
+    boot may write)."""
+    parser = configparser.RawConfigParser(inline_comment_prefixes=(';',), strict=False)
+    parser.optionxform = str
+    try:
+        parser.read_string(text)
+    except configparser.Error:
+        return
+    for section in parser.sections():
+        if not re.fullmatch(r'[0-9A-Fa-f]{4}', section) or not parser.has_option(section, 'CompactSubObj'):
+            continue
+        try:
+            n = int(parser.get(section, 'CompactSubObj'), 0)
+        except ValueError:
+            continue
+        index = int(section, 16)
+        obj = od.get(index) if index in od else None
+        if not isinstance(obj, odmod.ODArray) or 1 not in obj.subindices:
+            continue
+        for sub in range(2, min(n, 254) + 1):
+            if sub not in obj.subindices:
+                obj.add_member(obj[sub])
 
 
 class Dictionary:
@@ -182,7 +211,10 @@ class Dictionary:
         if not self.path.is_file():
             raise DictionaryReadError(f'EDS/DCF {str(self.path)!r} does not exist')
         try:
-            self.od = canopen.import_od(_source(self.path), node_id)
+            source, text = _source(self.path)
+            self.od = canopen.import_od(source, node_id)
+            if text is not None:
+                _expand_compact_arrays(self.od, text)
         except Exception as exc:  # noqa: BLE001 - configparser, UnicodeDecodeError, KeyError ...
             raise DictionaryReadError(f'{self.path}: not a readable EDS/DCF ({type(exc).__name__}: '
                                       f'{exc})') from exc
