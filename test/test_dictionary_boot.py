@@ -667,3 +667,51 @@ def test_pdo_mappings_in_compact_storage_are_planned_to_their_declared_size(tmp_
     finally:
         master.shutdown()
         sim.shutdown()
+
+
+# ------------------------------------------------------------------ a load-cell module nobody here wrote
+
+IOX4 = EDS / 'IoX4_8AI.eds'
+
+
+def _iox4_inputs() -> list[str]:
+    """The file's own analog inputs (7130h, CiA 404's process value), read by hand."""
+    cp = configparser.RawConfigParser()
+    cp.optionxform = str
+    cp.read_string(IOX4.read_bytes().decode('latin-1'))
+    subs = [s for s in cp.sections() if s.upper().startswith('7130SUB') and s.upper() != '7130SUB0']
+    assert all(cp.get(s, 'PDOMapping') == '1' and int(cp.get(s, 'DataType'), 0) == 0x0003 for s in subs)
+    return [cp.get(s, 'ParameterName') for s in subs]
+
+
+def test_a_vendor_analog_module_without_6401h_is_refused_naming_the_inputs_it_has():
+    """SYS TEC's IO-X4 has no CiA 401 6401h: the refusal names the module and lists the analog
+    inputs its file has (7100h / 7130h, AI0..), so a lab knows what to put in
+    can.load_cell_node.objects."""
+    names = _iox4_inputs()
+    with pytest.raises(DictionaryError) as err:
+        master_for(config(eds=str(SLAVE), load_cell_node={'node_id': 10, 'eds': str(IOX4)})).plan()
+    text = str(err.value)
+    assert 'sysWORXX CANopen IO-X4' in text and '6401h:1' in text, text
+    assert 'can.load_cell_node.objects' in text and 'AI0_Input' in text, text
+    assert names[0] == 'AI0_Input_PV'
+
+
+def test_the_brace_moves_with_its_load_cells_on_a_vendor_analog_module():
+    """The ros2_canopen slaves with the load cells on the IO-X4's 7130h:1..3 (INTEGER16): the
+    module boots from its own file, and the forces the master reads follow the simulator's
+    true leg forces within the noise (4 sigma) and one count."""
+    cfg = config(eds=str(SLAVE), load_cell_node={'node_id': 10, 'eds': str(IOX4),
+                                                 'objects': ['0x7130:1', '0x7130:2', '0x7130:3']})
+    sim, master, _ = _rig(cfg)
+    try:
+        master.boot()
+        module_tpdo = [w.value for w in master.module_plan.mapping if w.index == 0x1A00 and w.subindex > 0]
+        assert module_tpdo == [0x71300110, 0x71300210, 0x71300310]
+        _move_and_check(sim, master)
+        noise = float(BASE['sim']['load_cell_noise'])
+        count = float(BASE['actuator']['load_cell_n_per_count'])
+        np.testing.assert_allclose(master.feedback().force, sim.truth().forces, atol=4 * noise + count)
+    finally:
+        master.shutdown()
+        sim.shutdown()

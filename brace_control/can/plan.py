@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import functools
 import math
+import re
 import struct
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -637,14 +638,18 @@ OPTIONAL = (0x1006, 0x1016, 0x6007, 0x605A, 0x6065, 0x607C, 0x607D, 0x607F, 0x60
 
 
 def _analog_inputs(d: Dictionary) -> list[str]:
-    """PDO-mappable numeric objects whose name says analog input (candidates for the load cell)."""
+    """PDO-mappable numeric objects whose name says analog input (candidates for the load cell):
+    "analog" or "AI" (CiA 404's 7130h "AI Input PV", a vendor's "AI0_Input_PV") with "input",
+    or CiA 401's 6401h "Read Analog Input 16-bit"."""
     out = []
     for index in sorted(d.od.keys()):
         obj = d.od[index]
         subs = [obj] if not hasattr(obj, 'subindices') else [v for k, v in obj.subindices.items() if k > 0]
         for v in subs:
             name = f'{getattr(obj, "name", "")} {v.name}'.lower()
-            if 'analog' in name and 'input' in name and v.pdo_mappable and v.data_type in STRUCT_CODES:
+            words = set(re.split(r'[^a-z0-9]+', name))
+            analog = 'analog' in name or any(re.fullmatch(r'ai\d*', w) for w in words)
+            if analog and 'input' in name and v.pdo_mappable and v.data_type in STRUCT_CODES:
                 out.append(f'{v.index:04X}h:{v.subindex} {v.name!r}')
     return out[:6]
 
@@ -796,8 +801,12 @@ def plan_module(d: Dictionary, *, node_id: int, objects: Sequence[ObjectRef], tp
     if len(set(objects)) != len(objects):
         p.missing.append(f'can.load_cell_node.objects {[str(o) for o in objects]}: an object twice')
     if p.missing or lay is None:
+        absent = [o for o in objects if not d.exists(o)]
+        found = _analog_inputs(d) if absent else []
         raise DictionaryError(f'{who} cannot carry the load cells: ' + '; '.join(
             m.replace(f'can.tpdo.{tpdo}', 'can.load_cell_node') for m in p.missing)
+            + (f' (set can.load_cell_node.objects; analog inputs in this dictionary: {", ".join(found)})'
+               if found else '')
             + '. Nothing was sent')
     mapping = _mapping_writes(d, [], 'rpdo', node_id) + _mapping_writes(d, [lay], 'tpdo', node_id)
     return ModulePlan(node_id, d, p.writes, mapping, lay, heartbeat, p.notes, p.warnings)
