@@ -58,7 +58,7 @@ import canopen
 import numpy as np
 
 from .boot import BootMixin
-from .cia402 import NmtState, OpMode, State402, describe_statusword, emcy_description
+from .cia402 import NmtState, OpMode, State402, Statusword, describe_statusword, emcy_description
 from .cycle import CycleMixin
 from .errors import (DriverInitializationError, DriverOperationError, DriverTimeoutError,
                      FaultLatchedError)
@@ -800,7 +800,12 @@ class BraceMaster(BootMixin, MonitorMixin, CycleMixin):
                     return False
                 states = ', '.join(f'{d.name}: {describe_statusword(d.sample.statusword) if d.sample else "no TPDO"}'
                                    f' (NMT {d.nmt})' for d in self._drives)
-                raise DriverTimeoutError(f'{what} not reached within {limit:g} s ({states})')
+                local = [d.name for d in self._drives
+                         if d.sample is not None and not d.sample.statusword & Statusword.REMOTE]
+                hint = (f'; statusword bit 9 (remote) is clear on {", ".join(local)}: a drive under '
+                        'local control (its panel, its setup tool) does not take the controlword '
+                        'from the bus' if local else '')
+                raise DriverTimeoutError(f'{what} not reached within {limit:g} s ({states}){hint}')
             time.sleep(self.config.period / 2)
 
 

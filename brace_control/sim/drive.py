@@ -192,6 +192,9 @@ class SimulatedDrive(SimulatedDevice):
         self.encoder_frozen_at: int | None = None   # 6064h frozen at this value
         self.encoder_jump_counts = 0    # added to 6064h
         self.injected_warning = False
+        #: under local control (a panel, a setup tool): statusword bit 9 (remote) clear, the
+        #: controlword from the bus ignored
+        self.local_control = False
         self._injected_faults: set[int] = set()
         self._ff_mapped = True          # an RPDO carries 60B1h (else the demand's slope)
         self._sync_dt = 0.002           # the last SYNC interval (60C2h absent: the period)
@@ -245,6 +248,8 @@ class SimulatedDrive(SimulatedDevice):
         # the state's bits 0-3, 5, 6 (bit 5 quick stop is active low: clear only in
         # QUICK STOP ACTIVE), CiA 402-2 table 30
         sw = _STATE_BITS[self.state]
+        if self.local_control:
+            sw &= ~_SW_REMOTE
         if (self.injected_warning or self.master_heartbeat_lost) and self.warning:
             sw |= _SW_WARNING
         if self._limit_active or self._at_hard_stop:
@@ -435,6 +440,8 @@ class SimulatedDrive(SimulatedDevice):
         """CiA 402 device control: the controlword command decoding (Table 'commands')."""
         cw &= 0xFFFF
         self._controlword = cw
+        if self.local_control:
+            return          # under local control (its panel, a setup tool): remote bit 9 clear
         fault_edge = bool(cw & 0x80) and not self._cw_prev_fault_bit
         self._cw_prev_fault_bit = bool(cw & 0x80)
         st = self.state

@@ -158,6 +158,11 @@ class FaultInjector:
         """Set (clear) the statusword warning bit 7."""
         self._d(node_id).injected_warning = on
 
+    def local_control(self, node_id: int, on: bool = True) -> None:
+        """The drive under local control (its panel, a vendor's setup tool): statusword bit 9
+        (remote) clear, the controlword from the bus ignored."""
+        self._d(node_id).local_control = on
+
     # ---- sensors / actuator
     def freeze_encoder(self, node_id: int, frozen: bool = True) -> None:
         """6064h stops changing at its current value (the drive's own loop is unaffected:
@@ -231,7 +236,7 @@ class FaultInjector:
             d = self._d(node_id)
             with d.lock:
                 d.heartbeat_silenced = d.disconnected = d.tpdo_muted = False
-                d.stalled = d.injected_warning = False
+                d.stalled = d.injected_warning = d.local_control = False
                 d.encoder_frozen_at = None
                 d.encoder_jump_counts = 0
             d.clear_injected_fault()
