@@ -7,10 +7,12 @@
 
 * :mod:`.master`: :class:`BraceMaster`, made of :mod:`.state` (:class:`MasterConfig`,
   states, snapshots), :mod:`.boot` (SDO configuration, PDO mapping, NMT, homing),
-  :mod:`.receive` (TPDOs, heartbeats, EMCY), :mod:`.cycle` (the SYNC thread),
+  :mod:`.sync` (the SYNCs sent, a part of its own), :mod:`.receive` (TPDOs, heartbeats,
+  EMCY, error frames: a part of its own), :mod:`.cycle` (the SYNC thread),
   :mod:`.monitors` (per-cycle supervision).
-* :mod:`.execution`: the commanded motion, one time base for all axes:
-  :class:`ActuatorTrajectory` (quintic Hermite), :class:`PathExecutor`.
+* :mod:`.plan` / :mod:`.dictionary`: the boot planned against the drive's own EDS/DCF.
+* :mod:`brace_control.control.execution`: the commanded motion, one time base for all
+  axes: :class:`ActuatorTrajectory` (quintic Hermite), :class:`PathExecutor`.
 * :mod:`.units`: every SI <-> device-unit conversion.
 * :mod:`.cia402`: statusword / controlword / NMT / EMCY codes.
 * :mod:`.supervision`: fault kinds, latching, monitors, error-frame decoding.
