@@ -82,9 +82,12 @@ def test_services_joint_states_and_setpoints(ros, driver):
 
 
     def reached():      # the final setpoint again, freshly stamped, until the drives are there
+        # and stay there: three joint states (20 ms at 100 Hz) at the target, not one caught
+        # as the command passes through it (the stream's stop from 3 mm/s takes 9 um at a_max)
         pub.publish(setpoint(['a1', 'a2', 'a3'], target, probe))
         ros.spin_for(0.005)
-        return np.allclose(states[-1].position, target, rtol=0, atol=2e-6)
+        return len(states) >= 3 and all(np.allclose(js.position, target, rtol=0, atol=2e-6)
+                                        for js in states[-3:])
     ros.spin_until(reached, 3.0, 'moved')
     ros.spin_for(0.1)                   # the stream stopped: the command decelerated and holds
     held = np.array(states[-1].position)

@@ -230,6 +230,34 @@ def test_a_stream_that_stops_decelerates_along_its_direction_and_holds(rig):
     assert not master.supervisor.latched and master.state is MasterState.ENABLED
 
 
+def test_a_repeat_the_cycle_takes_alone_is_at_rest_in_the_senders_terms(rig):
+    """A stream ramps at 3 mm/s, then repeats its last position (a sender holding, as a
+    teleoperation client does). When the cycle takes only the newest of several setpoints that
+    arrived between two SYNCs (a busy host), the repeat alone is what it sees: the rate handed
+    to the executor is the sender's own between its last two setpoints (zero), not the ramp's
+    from the last setpoint the cycle took, which a stream stopping there would brake on with
+    (CI: 14 um past the last setpoint of a 0.5 mm lift)."""
+    sim, master = rig
+    delta = pose_delta([0.0, 0.0005, 0.0])
+    q0 = master.feedback().position.copy()
+    n, dt = 40, 0.004
+    for k in range(1, n - 2):                            # 4 ms apart, stamped as sent
+        master.set_targets(q0 + delta * k / n, stamp=k * dt)
+        time.sleep(dt)
+    wait_for(lambda: master._last_sp_seq == master._setpoint_seq, 0.2, 'the ramp taken')
+    ramp = master.executor._stream[1].copy()
+    assert np.abs(ramp - delta / (n * dt)).max() < 0.05 * np.abs(delta).max() / (n * dt), ramp
+    with master._exec_lock:                              # the cycle takes none of these three ...
+        master.set_targets(q0 + delta * (n - 2) / n, stamp=(n - 2) * dt)
+        master.set_targets(q0 + delta, stamp=(n - 1) * dt)
+        master.set_targets(q0 + delta, stamp=n * dt)     # ... but this repeat of the last one
+    wait_for(lambda: master._last_sp_seq == master._setpoint_seq, 0.2, 'the repeat taken')
+    position, rate, _ = master.executor._stream
+    np.testing.assert_array_equal(position, q0 + delta)
+    np.testing.assert_array_equal(rate, np.zeros(3))
+    assert not master.supervisor.latched
+
+
 # docs/safety.md §5, §6
 def test_bad_setpoints_raise_and_send_nothing(rig):
     sim, master = rig

@@ -164,6 +164,8 @@ class BraceMaster(BootMixin, MonitorMixin, CycleMixin):
         self._homing_start = False
         self._tracking = False                 # targets follow setpoints
         self._setpoint: _Setpoint | None = None
+        #: the last setpoint received (the sender's rate is taken from it), taken or not
+        self._received_sp: _Setpoint | None = None
         self._setpoint_seq = 0
         self._last_sp_seq = 0
         self._last_sp_time = -math.inf
@@ -245,9 +247,22 @@ class BraceMaster(BootMixin, MonitorMixin, CycleMixin):
             if vel.shape != arr.shape or not np.all(np.isfinite(vel)):
                 raise ValueError(f'expected {arr.size} finite velocities ({", ".join(self.names)}), '
                                  f'got {np.asarray(velocities).tolist()}')
+        now = time.perf_counter()
+        stamp = None if stamp is None else float(stamp)
+        prev = self._received_sp
+        if vel is None and prev is not None and now - prev.time <= self.limits.command_timeout:
+            # the sender's rate from its own last two setpoints (stamps, else arrivals), not
+            # from the last one the cycle took: a cycle that takes only the newest of a few
+            # would see a repeat of the final position as still moving, and a stream that
+            # stops there would brake past it
+            interval = (stamp - prev.stamp if stamp is not None and prev.stamp is not None
+                        and stamp > prev.stamp else now - prev.time)
+            vel = (arr - prev.position) / max(interval, self.config.period)
+            over = float(np.max(np.abs(vel))) / self.limits.v_max
+            if over > 1.0:
+                vel = vel / over
         self._setpoint_seq += 1
-        self._setpoint = _Setpoint(arr.copy(), time.perf_counter(), self._setpoint_seq,
-                                   None if stamp is None else float(stamp), vel)
+        self._setpoint = self._received_sp = _Setpoint(arr.copy(), now, self._setpoint_seq, stamp, vel)
 
     def execute(self, trajectory: ActuatorTrajectory, *, start: float, tag: int) -> str | None:
         """Run ``trajectory`` from ``start`` (perf_counter s: when the drives are to be at its
@@ -384,7 +399,7 @@ class BraceMaster(BootMixin, MonitorMixin, CycleMixin):
                     '(incremental encoders read 0 at power-up)')
             if self.state is MasterState.ENABLED and self._all_in(State402.OPERATION_ENABLED):
                 return
-            self._setpoint = None
+            self._setpoint = self._received_sp = None
             self._last_sp_stamp = None
             self._last_sp_time = -math.inf
             self._last_sp_position = None
@@ -435,7 +450,7 @@ class BraceMaster(BootMixin, MonitorMixin, CycleMixin):
         drop it (reported stopped with ``reason``)."""
         if self._tracking and not self.supervisor.latched:
             with self._exec_lock:
-                self._setpoint = None
+                self._setpoint = self._received_sp = None
                 self.executor.stop(reason, now=time.perf_counter())
             end = time.monotonic() + STOP_WAIT_S
             while self.executor.moving and time.monotonic() < end and not self.supervisor.latched:
@@ -635,7 +650,7 @@ class BraceMaster(BootMixin, MonitorMixin, CycleMixin):
                     f'nothing to recover: no protective stop is latched and no drive is in FAULT '
                     f'(master {self.state.value}); nothing was changed')
             self._tracking = False
-            self._setpoint = None
+            self._setpoint = self._received_sp = None
             self._fault_brake_until = 0.0
             with self._exec_lock:
                 self.executor.release('recover: commands discarded')
