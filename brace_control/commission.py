@@ -4,6 +4,7 @@ A lab's first day with a brace: which node id is which actuator, whether each dr
 the way the YAML says (polarity, counts per revolution), where each load cell's zero and gain
 are, and whether the nodes on the bus are the drives the EDS describes::
 
+    brace-commission CONFIG plan
     brace-commission CONFIG scan
     brace-commission CONFIG check [--axis NAME] [--yes] [--write OUT.yaml]
     brace-commission CONFIG calibrate-load-cell --axis NAME --known-force N [--yes] [--write OUT.yaml]
@@ -45,7 +46,7 @@ import numpy as np
 
 from .config import ConfigError, DeviceConfig, load_device_config, read_yaml
 
-__all__ = ['main', 'scan', 'NodeInfo', 'ScanResult', 'CheckResult', 'identify', 'EXIT_MATCH',
+__all__ = ['main', 'scan', 'plan_report', 'NodeInfo', 'ScanResult', 'CheckResult', 'identify', 'EXIT_MATCH',
            'EXIT_CORRECTED', 'EXIT_ERROR']
 
 EXIT_MATCH, EXIT_CORRECTED, EXIT_ERROR = 0, 1, 2
@@ -753,6 +754,9 @@ def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog='brace-commission', description=__doc__.split('\n\n')[0])
     ap.add_argument('config', help='device YAML')
     sub = ap.add_subparsers(dest='command', required=True)
+    sub.add_parser('plan', help='without a bus: the boot planned against each drive\'s EDS/DCF (every '
+                                'SDO write, what is skipped and why), or why the drives cannot drive '
+                                'the brace')
     sub.add_parser('scan', help='find the nodes on the bus and compare them with the YAML and the EDS')
     check = sub.add_parser('check', help='jog each axis: node ids, polarity, scale, following error, tare')
     check.add_argument('--axis', default=None, help='only this actuator (a name of mechanism.actuator_names)')
@@ -788,11 +792,43 @@ def _axis(session: Session, name: str | None) -> int | None:
     return session.names.index(name)
 
 
+def plan_report(cfg: DeviceConfig) -> tuple[bool, list[str]]:
+    """The boot of ``cfg``'s drives planned against their dictionaries, without a bus:
+    (planned, lines). The lines name every SDO write per drive and what the plan skipped and
+    why (the boot report); when the dictionaries cannot serve, the one message that says why
+    (:class:`~brace_control.can.plan.DictionaryError`)."""
+    from .can import BraceMaster, MasterConfig
+    from .can.errors import DriverInitializationError
+    master = BraceMaster(MasterConfig.from_device_config(cfg))
+    try:
+        plans = master.plan()
+    except DriverInitializationError as exc:
+        return False, [str(exc)]
+    lines = []
+    for plan in plans:
+        lines.append(f'{plan.name} (node {plan.node_id}, {plan.dictionary.product}): '
+                     f'{len(plan.writes) + len(plan.mapping)} SDO writes')
+        for w in plan.writes + plan.mapping:
+            lines.append(f'  {w.index:04X}h:{w.subindex} = {w.value:#x}  {w.what}')
+    if master.module_plan is not None:
+        mp = master.module_plan
+        lines.append(f'load-cell module (node {mp.node_id}, {mp.dictionary.product}): '
+                     f'{len(mp.writes) + len(mp.mapping)} SDO writes')
+        for w in mp.writes + mp.mapping:
+            lines.append(f'  {w.index:04X}h:{w.subindex} = {w.value:#x}  {w.what}')
+    lines += master.boot_report
+    return True, lines
+
+
 def _main(args: argparse.Namespace) -> int:
     path = Path(args.config)
     if not path.is_file():
         from .config import resolve_device_file
         path = resolve_device_file(args.config)
+    if args.command == 'plan':
+        planned, lines = plan_report(load_device_config(path))
+        print('\n'.join(lines))
+        return EXIT_MATCH if planned else EXIT_ERROR
     with Session(path) as session:
         found = session.scan()
         print(f'scan of {session.cfg.get_path("can.interface")}:{session.cfg.get_path("can.channel")} '

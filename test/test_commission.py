@@ -56,6 +56,35 @@ def run(capsys, *args) -> tuple[int, str, dict]:
     return rc, text, patch
 
 
+# ------------------------------------------------------------------ plan (no bus)
+
+def test_plan_lists_every_write_for_drives_that_serve_and_sends_nothing(capsys, monkeypatch):
+    """``plan`` on the Nanotec brace: exit 0, each drive's writes (6060h = 8 for CSP, the TPDO1
+    mapping with the analog input 3220h:1), and no bus opened (a lab runs it before wiring)."""
+    import can
+
+    def no_bus(*args, **kwargs):
+        raise AssertionError('plan opened a CAN bus')
+    monkeypatch.setattr(can, 'Bus', no_bus)
+    rc, text, _ = run(capsys, REPO / 'config' / 'lumbar_brace_nanotec.yaml', 'plan')
+    assert rc == 0, text
+    for name in ('a1 (node 1', 'a2 (node 2', 'a3 (node 3'):
+        assert name in text, text
+    assert '6060h:0 = 0x8' in text and '1A00h:3 = 0x32200110' in text, text
+
+
+def test_plan_refuses_drives_that_cannot_serve_with_the_reason(tmp_path, capsys):
+    """The same brace on Faulhaber's 605.3150.69 (no cyclic synchronous position, by its file):
+    exit 2 and the one message naming the missing mode."""
+    path = device_file(tmp_path)
+    doc = yaml.safe_load(path.read_text())
+    doc['/**']['ros__parameters']['can']['eds'] = str(REPO / 'test' / 'data' / 'eds' / '605.3150.69-B-EK-2-60.eds')
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    rc, text, _ = run(capsys, path, 'plan')
+    assert rc == 2, text
+    assert 'cyclic synchronous position' in text and 'cannot drive the brace' in text, text
+
+
 # ------------------------------------------------------------------ scan
 
 def test_scan_of_a_healthy_bus_matches_and_takes_under_a_second(tmp_path, capsys):
