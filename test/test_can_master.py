@@ -1050,7 +1050,11 @@ def test_a_loaded_stop_is_relieved_then_recovered():
         _recover_refused(master, FaultKind.FORCE_LIMIT)
         before = np.abs(sim.truth().forces).max()
         assert before > 30.0
-        message = master.relieve()
+        # the soft body unloads slowly (its force decays with a time constant of ~7 s: the
+        # relief's gain is set by a leg against its own stiffness): 13 s on a quiet machine,
+        # and the simulated world slows with the SYNCs a busy host misses. The check is what
+        # the relief ends with, not how long it takes: a longer deadline than the default 20 s
+        message = master.relieve(timeout=60.0)
         assert 'relieved' in message
         truth = sim.truth()
         assert np.abs(truth.forces).max() < 6.0          # the true forces, not one noisy reading

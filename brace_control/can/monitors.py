@@ -14,7 +14,8 @@ import logging
 import time
 from collections.abc import Callable
 
-from ..safety import Action, PlatformWrench, Verdict, WrenchTiers
+from ..safety import OK, Action, PlatformWrench, Verdict, WrenchTiers
+from ..safety.liveness import heartbeat, overspeed, stale_feedback
 from ..safety.wrench import SOFT_STREAM_S
 from .cia402 import NmtState, State402, decode_state, describe_statusword, emcy_description
 from .state import MasterConfig, MasterState, _Drive, _Module, _Node
@@ -99,12 +100,13 @@ class MonitorMixin:
         s = d.sample
         if s is None:
             return True
-        n = self.limits.stale_periods
-        others = len(self._drives) - 1
-        if others and self.receiver.tpdo_total - d.rx_total >= n * others:
-            return True
-        return timed and (self.clock.index - s.sync_index >= self.receiver.all_silent_periods
-                and time.perf_counter() - d.rx_time > self.receiver.all_silent_periods * self.config.period)
+        r = self.receiver
+        return stale_feedback(behind=r.tpdo_total - d.rx_total, others=len(self._drives) - 1,
+                              stale_periods=self.limits.stale_periods,
+                              syncs_silent=self.clock.index - s.sync_index,
+                              all_silent_periods=r.all_silent_periods,
+                              silent_s=time.perf_counter() - d.rx_time, period=self.config.period,
+                              timed=timed)
 
     def _sample_condition(self, d: _Drive, kind: FaultKind) -> Callable[[], bool]:
         def present() -> bool:
@@ -131,13 +133,11 @@ class MonitorMixin:
             self._monitor_module(self._module, in_grace)
         for d in self._drives:
             name = d.name
-            age = self.heartbeat_age(d) if d.heartbeat else 0.0
-            if age > limits.heartbeat_timeout and not in_grace:
-                self.supervisor.report(
-                    FaultKind.HEARTBEAT_LOST,
-                    f'no heartbeat from node {d.node_id} for {age * 1e3:.0f} ms '
-                    f'(consumer time {limits.heartbeat_timeout * 1e3:.0f} ms)',
-                    drive=name, still_present=self._heartbeat_missing(d))
+            alive = heartbeat(self.heartbeat_age(d), limits.heartbeat_timeout, d.node_id) \
+                if d.heartbeat and not in_grace else OK
+            if not alive.ok:
+                self.supervisor.report(FaultKind.HEARTBEAT_LOST, alive.reason, drive=name,
+                                       still_present=self._heartbeat_missing(d))
             elif d.nmt is not None and d.nmt != NmtState.OPERATIONAL:
                 self.supervisor.report(
                     FaultKind.NMT_STATE, f'node {d.node_id} reports NMT state '
@@ -192,11 +192,13 @@ class MonitorMixin:
                     and len(trend) >= 5 and f - trend[0] > SOFT_RISE_N and self._soft_stop is None):
                 self._soft_stop = (d.index, s.force)
             trend.append(f)
-            if commanded is not None and abs(d.velocity) > limits.speed_factor * limits.v_max:
-                self.supervisor.report(
-                    FaultKind.OVERSPEED, f'measured speed {d.velocity * 1e3:.1f} mm/s exceeds '
-                    f'{limits.speed_factor:g} x {limits.v_max * 1e3:.1f} mm/s', drive=name,
-                    still_present=lambda d=d: abs(d.velocity) > self.limits.speed_factor * self.limits.v_max)
+            if commanded is not None:
+                speed = overspeed(d.velocity, limits.v_max, limits.speed_factor, limits.unit)
+                if not speed.ok:
+                    self.supervisor.report(
+                        FaultKind.OVERSPEED, speed.reason, drive=name,
+                        still_present=lambda d=d: not overspeed(d.velocity, self.limits.v_max,
+                                                                self.limits.speed_factor).ok)
             d.checked = s
         if self.state is MasterState.ENABLED:
             self._monitor_loads(now, tracking)
@@ -245,12 +247,11 @@ class MonitorMixin:
         drives' (its readings are every actuator's force: a silent module is stale feedback)."""
         limits = self.limits
         who = f'{m.name} (node {m.node_id})'
-        age = self.heartbeat_age(m) if m.heartbeat else 0.0
-        if age > limits.heartbeat_timeout and not in_grace:
-            self.supervisor.report(
-                FaultKind.HEARTBEAT_LOST, f'no heartbeat from node {m.node_id} for {age * 1e3:.0f} ms '
-                f'(consumer time {limits.heartbeat_timeout * 1e3:.0f} ms)', drive=who,
-                still_present=self._heartbeat_missing(m))
+        alive = heartbeat(self.heartbeat_age(m), limits.heartbeat_timeout, m.node_id) \
+            if m.heartbeat and not in_grace else OK
+        if not alive.ok:
+            self.supervisor.report(FaultKind.HEARTBEAT_LOST, alive.reason, drive=who,
+                                   still_present=self._heartbeat_missing(m))
         elif m.nmt is not None and m.nmt != NmtState.OPERATIONAL:
             self.supervisor.report(FaultKind.NMT_STATE, f'node {m.node_id} reports NMT state {m.nmt}',
                                    drive=who, still_present=self._nmt_not_operational(m))

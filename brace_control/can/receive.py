@@ -29,6 +29,7 @@ from .plan import PdoLayout
 from .state import Feedback, MasterConfig, _Drive, _Module, _Node
 from .supervision import FaultKind, Sample, Supervisor, decode_error_frame
 from .sync import SyncClock
+from ..safety.liveness import heartbeat_age
 
 __all__ = ['Receiver', 'BusTraffic', 'BusListener']
 
@@ -213,11 +214,8 @@ class Receiver:
         drives' own consumer time of our heartbeat), whichever is longer (the bus, the
         wiring, or a host too starved to receive), it is the time since the heartbeat by
         the wall clock."""
-        wall = time.time()
-        newest = self.rx_wall
-        if wall - newest <= max(self.heartbeat_timeout, self.all_silent_periods * self.config.period):
-            return newest - d.hb_wall
-        return wall - d.hb_wall
+        return heartbeat_age(d.hb_wall, self.rx_wall, time.time(), consumer_time=self.heartbeat_timeout,
+                             all_silent=self.all_silent_periods * self.config.period)
 
     def heartbeat_callback(self, d: _Node) -> Callable[[int, bytearray, float], None]:
         def on_heartbeat(can_id: int, data: bytearray, timestamp: float) -> None:

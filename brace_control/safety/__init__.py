@@ -9,7 +9,9 @@ them in its SYNC cycle (:mod:`brace_control.can.monitors`); the nodes only repor
 - :mod:`.wrench`: the platform wrench from the load cells (:class:`PlatformWrench`), its
   hard and soft tiers (:class:`WrenchTiers`, docs/safety.md §8, §14), and the prediction the
   soft tiers share (:class:`LoadPrediction`), also applied to each actuator's load cell
-  (:class:`ForcePrediction`).
+  (:class:`ForcePrediction`);
+- :mod:`.liveness`: heartbeats (§2), fresh feedback (§9) and an impossible measured speed (§8):
+  silence judged on what was received, not on when this process looked.
 """
 from .verdict import OK, Action, Verdict
 from .wrench import ForcePrediction, LoadPrediction, PlatformWrench, WrenchTiers, wrench_axis
