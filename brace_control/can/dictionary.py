@@ -213,7 +213,7 @@ class Dictionary:
         try:
             source, text = _source(self.path)
             self.od = canopen.import_od(source, node_id)
-            if text is not None:
+            if text is not None and 'compactsubobj' in text.lower():
                 _expand_compact_arrays(self.od, text)
         except Exception as exc:  # noqa: BLE001 - configparser, UnicodeDecodeError, KeyError ...
             raise DictionaryReadError(f'{self.path}: not a readable EDS/DCF ({type(exc).__name__}: '
