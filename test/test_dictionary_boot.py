@@ -715,3 +715,31 @@ def test_the_brace_moves_with_its_load_cells_on_a_vendor_analog_module():
     finally:
         master.shutdown()
         sim.shutdown()
+
+
+def test_a_drive_that_keeps_only_part_of_the_velocity_unit_stops_the_boot_naming_it():
+    """Firmware that accepts the 60A9h write but keeps its own unit (a drive whose velocity unit
+    is always rpm, only the power of ten settable): read back, the boot stops before the
+    drives are enabled, naming what the drive kept; the simulator's true lengths never move."""
+    def rpm_only(sim):
+        for node_id in (1, 2, 3):
+            drive = sim.drive(node_id)
+            put = drive._put
+
+            def keep_rpm(index, sub, value, put=put):
+                if index == 0x60A9:
+                    value = (value & 0xFF000000) | 0x00B44700
+                put(index, sub, value)
+            drive._put = keep_rpm
+    sim, master, _ = _rig(config(**PLANNED['nanotec']), before_start=rpm_only)
+    try:
+        before = sim.truth().lengths.copy()
+        with pytest.raises(DriverInitializationError) as err:
+            master.boot()
+        text = str(err.value)
+        assert 'kept 60A9h:0 = FFB44700h after FF410300h was written' in text, text
+        assert 'a1 (node 1)' in text
+        np.testing.assert_array_equal(sim.truth().lengths, before)
+    finally:
+        master.shutdown()
+        sim.shutdown()

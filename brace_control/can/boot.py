@@ -361,6 +361,9 @@ class BootMixin:
         d.node.nmt.send_command(0x80)                    # enter pre-operational
         for w in plan.writes + plan.mapping:
             self._download(d, w, plan.dictionary.path.name)
+        for w in plan.writes:
+            if w.index == 0x60A9:
+                self._verify_unit(d, w)
         try:
             raw = d.node.sdo.upload(0x1000, 0)
             device_type = struct.unpack('<I', raw[:4])[0]
@@ -369,6 +372,26 @@ class BootMixin:
                             d.name, device_type)
         except (canopen.SdoAbortedError, canopen.SdoCommunicationError, struct.error):
             pass
+
+    def _verify_unit(self, d: _Drive, w: SdoWrite) -> None:
+        """Read back a unit the boot set (60A9h): some firmware accepts the write and keeps only
+        part of it (a drive whose velocity unit is always rpm, the power of ten aside). The
+        feed-forward and the speed limits would then be read in another unit than the master
+        writes them: the boot stops, naming what the drive kept."""
+        try:
+            raw = d.node.sdo.upload(w.index, w.subindex)
+        except (canopen.SdoAbortedError, canopen.SdoCommunicationError) as exc:
+            raise DriverInitializationError(
+                f'{d.name} (node {d.node_id}): {w.index:04X}h:{w.subindex} ({w.what}) could not be read '
+                f'back after the write: {exc}') from exc
+        kept = int.from_bytes(bytes(raw[:4]), 'little')
+        if kept != w.value & 0xFFFFFFFF:
+            raise DriverInitializationError(
+                f'{d.name} (node {d.node_id}) kept {w.index:04X}h:{w.subindex} = {kept:08X}h after '
+                f'{w.value & 0xFFFFFFFF:08X}h was written ({w.what}): its velocity unit cannot be '
+                'the position unit per second, and the master writes velocities (607Fh, 6083h..6085h, '
+                'the 60B1h feed-forward) in it. Nothing moves; set the drive\'s units with its tool '
+                '(docs/can.md, "Units")')
 
     def _configure_module(self, m: _Module) -> None:
         plan: ModulePlan = self.module_plan
