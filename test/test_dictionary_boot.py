@@ -743,3 +743,30 @@ def test_a_drive_that_keeps_only_part_of_the_velocity_unit_stops_the_boot_naming
     finally:
         master.shutdown()
         sim.shutdown()
+
+
+# ------------------------------------------------------------------ absolute encoders
+
+def test_a_drive_that_cannot_home_is_refused_with_the_way_out_and_runs_with_absolute_encoders(tmp_path):
+    """The CL3-E without 6098h (homing method), as some drives with absolute encoders are:
+    with can.homing_method 35 the plan is refused, saying to set it to 0; with 0, nothing of
+    homing is written or sent (home() is a no-op), enable needs no homing, the simulated
+    drives read the installed length from power-up (absolute encoders), and the brace moves
+    to the goal's inverse kinematics on the simulator's truth."""
+    eds = edited_eds(tmp_path, NANOTEC, drop=('6098',))
+    assert raw_var(canopen.import_od(str(eds), 1), 0x6098, 0) is None
+    with pytest.raises(DictionaryError) as err:
+        master_for(config(eds=str(eds), load_cell_object='0x3220:1')).plan()
+    assert '6098h' in str(err.value) and 'can.homing_method: 0' in str(err.value), str(err.value)
+    cfg = config(eds=str(eds), load_cell_object='0x3220:1', homing_method=0)
+    plan = master_for(cfg).plan()[0]
+    assert not any(w.index == 0x6098 for w in plan.writes)
+    sim, master, _ = _rig(cfg)
+    try:
+        master.boot()
+        np.testing.assert_allclose(master.feedback().position, sim.truth().lengths, atol=2e-7)
+        _move_and_check(sim, master)          # home() first: nothing to do
+        assert master.homed
+    finally:
+        master.shutdown()
+        sim.shutdown()

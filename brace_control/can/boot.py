@@ -401,7 +401,8 @@ class BootMixin:
 
     # ------------------------------------------------------------------ homing
     def home(self, *, timeout: float | None = None) -> None:
-        """Home every drive with ``can.homing_method`` (6098h) and home offset 607Ch.
+        """Home every drive with ``can.homing_method`` (6098h) and home offset 607Ch; with
+        ``can.homing_method: 0`` (absolute encoders) there is nothing to home and nothing is sent.
 
         Method 35 (37): the current position becomes the home offset, i.e. the actuator
         length at the home pose: park the brace there first. A drive without a writable 607Ch
@@ -416,6 +417,12 @@ class BootMixin:
         """
         with self._api_lock:
             self._require_ready()
+            if not self.config.homing_method:
+                # can.homing_method 0: absolute encoders, the drives' positions are the lengths
+                # already; nothing is sent (a drive without 6098h has no homing to ask for)
+                self.homed = True
+                log.info('home: can.homing_method = 0 (absolute encoders): nothing to home')
+                return
             if self.state is not MasterState.DISABLED:
                 raise DriverOperationError(
                     f'home refused: the drives are {self.state.value}; homing re-zeroes the '

@@ -664,7 +664,9 @@ def _plan_homing(p: _Planner, method: int) -> None:
     v = d.var(ObjectRef(0x6098))
     if v is None or not v.writable:
         p.missing.append('6098h (homing method, for can.homing_method) '
-                         + ('absent' if v is None else 'not writable'))
+                         + ('absent' if v is None else 'not writable')
+                         + ': the drive cannot home itself; set can.homing_method: 0 for absolute '
+                         'encoders (or home it with its own tool, then 0)')
         return
     offered = _homing_methods(d)
     lo = v.min if v.min is not None else -128

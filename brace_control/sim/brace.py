@@ -322,7 +322,8 @@ class SimulatedBrace:
                                               initial_length_m=float(q0[i]),
                                               bandwidth_hz=self.drive_bandwidth_hz,
                                               load_cell=(load_cell.index, load_cell.subindex),
-                                              polarity=polarity[i]))
+                                              polarity=polarity[i],
+                                              absolute_encoder=not int(cfg.get_path('can.homing_method'))))
         #: the CiA 401 module carrying the load cells (``can.load_cell_node``), or None
         self.module: SimulatedAnalogModule | None = None
         if module is not None:

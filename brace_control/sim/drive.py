@@ -162,12 +162,16 @@ class SimulatedDrive(SimulatedDevice):
                  send: Callable[[int, bytes], None] | None = None,
                  clock: Callable[[], float] = time.monotonic,
                  bandwidth_hz: float = DEFAULT_BANDWIDTH_HZ,
-                 load_cell: tuple[int, int] = (LOAD_CELL_INPUT, 0), polarity: int = 1) -> None:
+                 load_cell: tuple[int, int] = (LOAD_CELL_INPUT, 0), polarity: int = 1,
+                 absolute_encoder: bool = False) -> None:
         if polarity not in (1, -1):
             raise ValueError(f'polarity must be +1 or -1, got {polarity!r}')
         #: +1, or -1: the encoder counts down as the actuator lengthens (its motor wired the
         #: other way round); the drive's position loop works on its own counts either way
         self.polarity = int(polarity)
+        #: an absolute encoder: 6064h is the installed length in counts from power-up (no
+        #: homing: ``can.homing_method: 0``); else incremental, 0 at power-up
+        self.absolute_encoder = bool(absolute_encoder)
         if isinstance(bandwidth_hz, bool) or not isinstance(bandwidth_hz, (int, float)) \
                 or not math.isfinite(bandwidth_hz) or bandwidth_hz <= 0.0:
             raise ValueError(f'position-loop bandwidth must be a positive number of Hz, '
@@ -316,16 +320,17 @@ class SimulatedDrive(SimulatedDevice):
                 (0x6060, 0): 0, (0x6061, 0): 0, (0x1014, 0): 0x80 + self.node_id}
 
     def _reset_application(self) -> None:
-        """Power-up of the drive application: encoder counts restart at 0, not homed."""
+        """Power-up of the drive application: encoder counts restart at 0, not homed (an
+        absolute encoder reads the length at once)."""
         if not self._store:
             self._store.update(self._defaults())
         for key, value in self._firmware().items():
             if self.dictionary.var(ObjectRef(*key)) is None:
                 self._store.setdefault(key, value)
         self._store[(0x6061, 0)] = self._store.get((0x6060, 0), 0)
-        self._enc_zero = math.floor(self.length_m * self._cpm)
+        self._enc_zero = 0 if self.absolute_encoder else math.floor(self.length_m * self._cpm)
         self._home_shift = 0
-        self.homed = False
+        self.homed = self.absolute_encoder
         self._homing_attained = False
         self._homing_error = False
         self._faults.clear()
