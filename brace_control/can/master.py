@@ -362,6 +362,20 @@ class BraceMaster(BootMixin, MonitorMixin, CycleMixin):
         """CAN error frames received since the bus opened."""
         return self.traffic.error_frames
 
+    @property
+    def attribution_window(self) -> int:
+        """The most SYNCs a TPDO1 may answer late and still be counted (:class:`.sync.SyncClock`)."""
+        return self.clock.attribution_window
+
+    @attribution_window.setter
+    def attribution_window(self, value: int) -> None:
+        self.clock.attribution_window = int(value)
+
+    @property
+    def all_silent_periods(self) -> int:
+        """SYNCs every drive may be silent before that is stale feedback (:class:`.receive.Receiver`)."""
+        return self.receiver.all_silent_periods
+
     def _drive_rebooted(self) -> None:
         """A supervised drive sent a boot-up: its configuration and homing are gone."""
         self.homed = False
