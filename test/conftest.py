@@ -26,6 +26,16 @@ def _domain_id() -> str:
 
 
 os.environ['ROS_DOMAIN_ID'] = _domain_id()
+
+# Property tests run the same examples on every run (derandomized, no example database):
+# a suite that passes or fails by the draw is not deterministic. ``HYPOTHESIS_PROFILE=explore``
+# draws new ones on every run to hunt for counterexamples; one found that way goes into the
+# test as an ``@example``.
+from hypothesis import settings as _hypothesis_settings  # noqa: E402
+
+_hypothesis_settings.register_profile('brace', derandomize=True, database=None)
+_hypothesis_settings.register_profile('explore', database=None)
+_hypothesis_settings.load_profile(os.environ.get('HYPOTHESIS_PROFILE', 'brace'))
 os.environ.setdefault('MPLBACKEND', 'Agg')
 os.environ.setdefault('RCUTILS_LOGGING_BUFFERED_STREAM', '1')
 

@@ -523,8 +523,38 @@ class Rpr3(RprLegs, MechanismBase):
                     break
             else:
                 out.append(np.array([x, y, th]))
+        out = self._merge_indistinct(out, lv)
         out.sort(key=lambda p: (p[2], p[0]))
         return out
+
+    def _merge_indistinct(self, poses: list[np.ndarray], lv: np.ndarray) -> list[np.ndarray]:
+        """One pose for roots the lengths cannot tell apart: near a singularity a double root
+        of the forward polynomial comes out as two poses a few 1e-8 m apart, each within
+        :attr:`verify_tol`. Two poses within 1e-6 x the size of each other whose midpoint also
+        reproduces ``lv`` within :attr:`verify_tol` are one root: the one closer to ``lv`` is
+        kept. Distinct assembly modes have a midpoint far from ``lv``; two that are both close
+        to ``lv`` but microns apart (a near-singular pair) are both kept."""
+        if len(poses) < 2:
+            return poses
+        near = 1e-6 * self._length_scale
+        target = (float(lv[0]), float(lv[1]), float(lv[2]))
+
+        def error(x: float, y: float, th: float) -> float:
+            return max(abs(a - b) for a, b in zip(self._lengths_py(x, y, th), target))
+        keep = [True] * len(poses)
+        for i in range(len(poses)):
+            for j in range(i + 1, len(poses)):
+                if not (keep[i] and keep[j]):
+                    continue
+                a, b = poses[i], poses[j]
+                dth = wrap_angle(float(b[2] - a[2]))
+                if abs(b[0] - a[0]) > near or abs(b[1] - a[1]) > near or abs(dth) > 1e-6:
+                    continue
+                mid = (0.5 * float(a[0] + b[0]), 0.5 * float(a[1] + b[1]), float(a[2]) + 0.5 * dth)
+                if error(*mid) <= self.verify_tol:
+                    worse = i if error(*map(float, a)) > error(*map(float, b)) else j
+                    keep[worse] = False
+        return [p for p, k in zip(poses, keep) if k]
 
     def _residual(self, poses: np.ndarray, lv: np.ndarray) -> np.ndarray:
         return self._lengths_unchecked(poses) - lv
