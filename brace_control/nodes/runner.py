@@ -215,6 +215,17 @@ def run_node(factory: Callable[[], Node], *, executable: str, summary: str,
         # a callback still awaiting a peer that is gone (a service call to a node already
         # stopped) must not hold the exit: wait a bounded time for the running callbacks
         spinner.shutdown(timeout_sec=EXECUTOR_SHUTDOWN_S)
+        # The events executor keeps callbacks registered on the node's publishers and
+        # subscriptions: destroying those under it can crash (ros2/rclpy#1644, open), and so
+        # can the executor itself when the interpreter frees it after the context is gone (a
+        # node that ended its work cleanly, then exited with SIGSEGV in the suite). Take the
+        # node out of it, destroy the node, then the executor, then the context, in that order.
+        try:
+            spinner.remove_node(node)
+        except Exception:  # noqa: BLE001 - a teardown step; the next ones still run
+            pass
         node.destroy_node()
+        del spinner
+        gc.collect()
         rclpy.try_shutdown()
     return code
