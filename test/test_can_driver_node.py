@@ -213,3 +213,18 @@ def test_a_dead_cycle_process_is_a_protective_stop_and_every_service_says_so(ros
     assert not res.success and 'control cycle process' in res.message, res.message
     driver.shutdown()
     assert driver.lifecycle_state == 'finalized'
+
+
+def test_a_control_cycle_closed_on_purpose_is_no_safety_error(ros, driver):
+    """Between the driver closing its control cycle's process (its shutdown) and the node's own
+    teardown, a diagnostics pass says the bus is closed (WARN), not that the process is gone
+    (ERROR, which a report counts as a protective stop)."""
+    from diagnostic_msgs.msg import DiagnosticStatus as Status
+
+    from brace_control.can.process import MasterProcess
+    m = driver.master
+    assert isinstance(m, MasterProcess), type(m)          # can.cycle_process is the default
+    m.shutdown()
+    safety = [s for s in driver.diagnostics().status if s.name.endswith('/safety')]
+    assert len(safety) == 1 and safety[0].level == Status.WARN, safety
+    assert 'CAN bus closed' in safety[0].message, safety[0].message

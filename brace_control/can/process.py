@@ -470,6 +470,11 @@ class MasterProcess:
         return self._ended
 
     @property
+    def closing(self) -> bool:
+        """:meth:`shutdown` was called: the child ends because it was told to."""
+        return self._closing
+
+    @property
     def pid(self) -> int:
         return self._proc.pid
 
