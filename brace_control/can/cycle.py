@@ -37,7 +37,7 @@ from .frame import Frame
 from ..control.execution import ExecutionState
 from .monitors import BRAKEABLE
 from .pdo import frame_bits
-from .state import Relief, TakeUp, _Drive, _Setpoint
+from .state import Relief, TakeUp, _Drive, _Setpoint, sender_rate
 from .supervision import FaultKind, check_step
 from .timing import run_periodic
 
@@ -255,16 +255,15 @@ class CycleMixin:
         self.supervisor.unwarn('setpoint_stamps')
         velocity = sp.velocity
         if velocity is None:
-            # the sender's rate from its last two setpoints (stamps, else arrivals): the
-            # stream's feed-forward, so the command does not lag the stream by v / gain
+            # (set_targets gives the sender's rate from its own last two setpoints; none for
+            # the first of a stream) the rate since the last setpoint taken (stamps, else
+            # arrivals)
             velocity = np.zeros(len(self._drives))
             if self._last_sp_position is not None:
                 interval = (sp.stamp - prev_stamp if sp.stamp is not None and prev_stamp is not None
                             else arrival)
-                velocity = (sp.position - self._last_sp_position) / max(interval, period)
-                over = float(np.max(np.abs(velocity))) / limits.v_max
-                if over > 1.0:
-                    velocity = velocity / over
+                velocity = sender_rate(sp.position, self._last_sp_position, interval, period=period,
+                                       v_max=limits.v_max)
         self._last_sp_time = sp.time
         self._last_sp_stamp = sp.stamp
         self._last_sp_position = sp.position

@@ -70,7 +70,7 @@ from .monitors import NO_FEEDFORWARD_LAG_S, RELIEVABLE, platform_tiers
 from .plan import BootPlan, ModulePlan
 from ..safety import ForcePrediction
 from .state import (BusStatus, DriveStatus, Feedback, MasterConfig, MasterState, MasterStatus,
-                    Relief, TakeUp, _Drive, _Module, _Node, _Setpoint)
+                    Relief, TakeUp, _Drive, _Module, _Node, _Setpoint, sender_rate)
 from .supervision import Fault, FaultKind, Supervisor
 from .sync import SyncClock
 from .timing import PeriodStats
@@ -257,10 +257,8 @@ class BraceMaster(BootMixin, MonitorMixin, CycleMixin):
             # stops there would brake past it
             interval = (stamp - prev.stamp if stamp is not None and prev.stamp is not None
                         and stamp > prev.stamp else now - prev.time)
-            vel = (arr - prev.position) / max(interval, self.config.period)
-            over = float(np.max(np.abs(vel))) / self.limits.v_max
-            if over > 1.0:
-                vel = vel / over
+            vel = sender_rate(arr, prev.position, interval, period=self.config.period,
+                              v_max=self.limits.v_max)
         self._setpoint_seq += 1
         self._setpoint = self._received_sp = _Setpoint(arr.copy(), now, self._setpoint_seq, stamp, vel)
 

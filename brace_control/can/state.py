@@ -300,6 +300,16 @@ class _Setpoint:
     velocity: np.ndarray | None = None   # unit/s, the sender's rate (feed-forward), if any
 
 
+def sender_rate(position: np.ndarray, previous: np.ndarray, interval: float, *, period: float,
+                v_max: float) -> np.ndarray:
+    """A setpoint stream's rate (unit/s) from two of its setpoints ``interval`` s apart (at
+    least one period), scaled as a whole vector to at most ``v_max`` on every axis: the
+    stream's feed-forward, so the command does not lag the stream by v / gain."""
+    rate = (position - previous) / max(interval, period)
+    over = float(np.max(np.abs(rate))) / v_max
+    return rate / over if over > 1.0 else rate
+
+
 @dataclass
 class _Node:
     """What the master keeps of one CANopen node it supervises: heartbeat, NMT state, EMCY."""
