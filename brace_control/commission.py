@@ -804,18 +804,14 @@ def plan_report(cfg: DeviceConfig) -> tuple[bool, list[str]]:
         plans = master.plan()
     except DriverInitializationError as exc:
         return False, [str(exc)]
+    mp = master.module_plan
+    nodes = [(f'{p.name} (node {p.node_id}', p) for p in plans]
+    nodes += [] if mp is None else [(f'load-cell module (node {mp.node_id}', mp)]
     lines = []
-    for plan in plans:
-        lines.append(f'{plan.name} (node {plan.node_id}, {plan.dictionary.product}): '
-                     f'{len(plan.writes) + len(plan.mapping)} SDO writes')
-        for w in plan.writes + plan.mapping:
-            lines.append(f'  {w.index:04X}h:{w.subindex} = {w.value:#x}  {w.what}')
-    if master.module_plan is not None:
-        mp = master.module_plan
-        lines.append(f'load-cell module (node {mp.node_id}, {mp.dictionary.product}): '
-                     f'{len(mp.writes) + len(mp.mapping)} SDO writes')
-        for w in mp.writes + mp.mapping:
-            lines.append(f'  {w.index:04X}h:{w.subindex} = {w.value:#x}  {w.what}')
+    for who, p in nodes:
+        writes = p.writes + p.mapping
+        lines.append(f'{who}, {p.dictionary.product}): {len(writes)} SDO writes')
+        lines += [f'  {w.index:04X}h:{w.subindex} = {w.value:#x}  {w.what}' for w in writes]
     lines += master.boot_report
     return True, lines
 

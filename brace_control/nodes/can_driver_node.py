@@ -932,23 +932,22 @@ class CanDriverNode(LifecycleNode):
 
         msg = DiagnosticArray()
         m = self.master
-        if m is None:
-            status('safety', 'warn', f'{self._lifecycle}: CAN bus closed, drives not driven',
-                   lifecycle=self._lifecycle)
-            msg.header.stamp = self.get_clock().now().to_msg()
-            msg.status = out
-            return msg
-        try:
-            st = m.status()
-        except DriverError as exc:              # the cycle's process is gone (or going)
-            if getattr(m, 'closing', False):
-                # closed on purpose (the node shutting down, a cleanup): not a fault, and no
+        st = None
+        closed = m is None
+        if m is not None:
+            try:
+                st = m.status()
+            except DriverError as exc:          # the cycle's process is gone (or going)
+                # closed on purpose (the node shutting down, a cleanup) is no fault, and no
                 # report of one (a diagnostics pass between the close and the node's own
                 # teardown said ERROR here and the demo counted a protective stop)
+                closed = getattr(m, 'closing', False)
+                if not closed:
+                    status('safety', 'error', f'{self._lifecycle}: {exc}', lifecycle=self._lifecycle)
+        if st is None:
+            if closed:
                 status('safety', 'warn', f'{self._lifecycle}: CAN bus closed, drives not driven',
                        lifecycle=self._lifecycle)
-            else:
-                status('safety', 'error', f'{self._lifecycle}: {exc}', lifecycle=self._lifecycle)
             msg.header.stamp = self.get_clock().now().to_msg()
             msg.status = out
             return msg

@@ -10,12 +10,13 @@ thread runs the drives' heartbeats, heartbeat-consumer timeouts and TPDO event t
 Host stalls: the simulated drives run inside the host process. When that process does not
 run at all for a while (a full pass of Python's garbage collector over a large heap, the OS
 scheduler on a loaded machine), the timer thread wakes late, or its few microseconds of work
-take that long; the drives' clock is taken to have stood still for that time (:meth:`SimulatedDrive.host_stalled`), as the physics does
-(its step is clamped). Real drives would not stand still: the master rides out its own stalls
-(``master.py``'s grace after a stall; the heartbeat consumer time 1016h is twice the master's
-period), and the nodes freeze their start-up heap out of the collector
-(:func:`brace_control.nodes.runner.freeze_start_up_heap`). A master that stops while this
-process runs (its thread stuck, the heartbeat silenced) still trips the drives on time.
+take that long; the drives' clock is taken to have stood still for that time
+(:meth:`SimulatedDrive.host_stalled`), as the physics does (its step is clamped). Real drives
+would not stand still: the master rides out its own stalls (``master.py``'s grace after a
+stall; the heartbeat consumer time 1016h is twice the master's period), and the nodes freeze
+their start-up heap out of the collector (:func:`brace_control.nodes.runner.freeze_start_up_heap`).
+A master that stops while this process runs (its thread stuck, the heartbeat silenced) still
+trips the drives on time.
 A frame the master sent that still waits in the simulator's receive queue (its Notifier
 thread busy with the physics of earlier SYNCs) is not silence either: the drives' heartbeat
 consumers judge silence only up to the oldest such frame's send time
