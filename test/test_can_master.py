@@ -1158,25 +1158,18 @@ def test_a_cable_brace_takes_up_its_slack_after_a_relief():
         sim.shutdown()
 
 
-def test_a_drive_under_local_control_is_named_when_enable_times_out():
+def test_a_drive_under_local_control_is_named_when_enable_times_out(rig):
     """A drive left under local control (its panel, the vendor's setup tool) keeps statusword
     bit 9 (remote) clear and ignores the controlword: enable times out, and the message names
     that drive and the remote bit, not only the states."""
     from brace_control.can import DriverTimeoutError
-    channel = f'cantest-{os.getpid()}-{next(_ids)}'
-    sim = SimulatedBrace(CFG, channel=channel)
-    master = BraceMaster.from_device_config(CFG, channel=channel)
-    try:
-        master.boot()
-        master.home()
-        sim.faults.local_control(2)
-        with pytest.raises(DriverTimeoutError) as err:
-            master.enable(timeout=0.5)
-        text = str(err.value)
-        assert 'bit 9 (remote) is clear on a2' in text and 'a1' not in text.split('clear on')[1], text
-        assert sim.drive(2).statusword & 0x200 == 0 and sim.drive(1).statusword & 0x200
-        sim.faults.local_control(2, False)
-        master.enable()
-    finally:
-        master.shutdown()
-        sim.shutdown()
+    sim, master = rig
+    master.disable()
+    sim.faults.local_control(2)
+    with pytest.raises(DriverTimeoutError) as err:
+        master.enable(timeout=0.5)
+    text = str(err.value)
+    assert 'bit 9 (remote) is clear on a2' in text and 'a1' not in text.split('clear on')[1], text
+    assert sim.drive(2).statusword & 0x200 == 0 and sim.drive(1).statusword & 0x200
+    sim.faults.local_control(2, False)
+    master.enable()

@@ -8,6 +8,7 @@ oracle is the dictionary file as ``canopen.import_od`` reads it, looked up here 
 from __future__ import annotations
 
 import configparser
+import contextlib
 import copy
 import itertools
 import os
@@ -354,6 +355,17 @@ def _rig(cfg: DeviceConfig, *, before_start=None):
     return sim, master_for(cfg, channel), channel
 
 
+@contextlib.contextmanager
+def _rigged(cfg: DeviceConfig, *, before_start=None):
+    """``(sim, master)`` of :func:`_rig`, both shut down on leaving."""
+    sim, master, _ = _rig(cfg, before_start=before_start)
+    try:
+        yield sim, master
+    finally:
+        master.shutdown()
+        sim.shutdown()
+
+
 def _move_and_check(sim, master):
     """Home, enable, a 6 mm lift: the simulator's true lengths end at the IK of the goal."""
     master.home()
@@ -378,20 +390,13 @@ def test_a_drive_answering_sdo_20_ms_late_boots_with_can_sdo_timeout_raised():
     def slow(sim):
         for node_id in (1, 2, 3):
             sim.faults.delay_sdo(node_id, 0.02)
-    sim, master, _ = _rig(config(**PLANNED['nanotec'], sdo_timeout=0.01, sdo_retries=0), before_start=slow)
-    try:
+    impatient = config(**PLANNED['nanotec'], sdo_timeout=0.01, sdo_retries=0)
+    with _rigged(impatient, before_start=slow) as (sim, master):
         with pytest.raises(DriverInitializationError, match=r'did not answer the SDO write.*can.sdo_timeout = 0.01'):
             master.boot()
-    finally:
-        master.shutdown()
-        sim.shutdown()
-    sim, master, _ = _rig(config(**PLANNED['nanotec'], sdo_timeout=0.05), before_start=slow)
-    try:
+    with _rigged(config(**PLANNED['nanotec'], sdo_timeout=0.05), before_start=slow) as (sim, master):
         master.boot()
         _move_and_check(sim, master)
-    finally:
-        master.shutdown()
-        sim.shutdown()
 
 
 @pytest.mark.parametrize('when', ['power_on', 'always'])
@@ -428,8 +433,7 @@ def test_a_drive_that_sends_no_boot_up_is_brought_up(when):
 def test_a_drive_without_607ch_homes_with_the_offset_kept_by_the_master(tmp_path):
     eds = edited_eds(tmp_path, NANOTEC, drop=('607C',))
     cfg = config(eds=str(eds), load_cell_object='0x3220:1')
-    sim, master, _ = _rig(cfg)
-    try:
+    with _rigged(cfg) as (sim, master):
         master.boot()
         assert not master.plans[0].home_offset_on_drive
         assert any('607Ch' in line and 'keeps the home offset' in line for line in master.boot_report)
@@ -438,17 +442,13 @@ def test_a_drive_without_607ch_homes_with_the_offset_kept_by_the_master(tmp_path
         q = sim.truth().lengths
         assert abs(sim.drive(2).position_counts - round(q[1] * 8192000)) > 1000
         np.testing.assert_allclose(master.feedback().position, q, atol=2e-7)
-    finally:
-        master.shutdown()
-        sim.shutdown()
 
 
 def test_an_unsigned_analog_input_reads_zero_force_at_mid_scale(tmp_path):
     """A 16-bit unsigned ADC input of a bipolar load-cell amplifier: 0 N at 32768 counts."""
     eds = edited_eds(tmp_path, NANOTEC, set_={('3220sub1', 'DataType'): '0x0006'})
     cfg = config(eds=str(eds), load_cell_object='0x3220:1')
-    sim, master, _ = _rig(cfg)
-    try:
+    with _rigged(cfg) as (sim, master):
         master.boot()
         _move_and_check(sim, master)
         true = sim.truth().forces
@@ -457,9 +457,6 @@ def test_an_unsigned_analog_input_reads_zero_force_at_mid_scale(tmp_path):
         assert all(0 <= c <= 0xFFFF for c in counts)
         np.testing.assert_allclose(np.array(counts) - 32768, true / 0.01, atol=4 * 0.05 / 0.01 + 1)
         np.testing.assert_allclose(master.feedback().force, true, atol=4 * 0.05 + 0.01)
-    finally:
-        master.shutdown()
-        sim.shutdown()
 
 
 # ------------------------------------------------------------------ files that are not ASCII
@@ -605,14 +602,10 @@ def test_fixed_pdos_that_carry_what_the_master_needs_are_used_as_the_drive_has_t
         assert not any(i == index for i, _ in written), sorted(written)
     assert (0x1800, 1) not in written and (0x1400, 1) not in written
     assert plan.feedback.roles == ('position', 'load', 'statusword')
-    sim, master, _ = _rig(cfg)
-    try:
+    with _rigged(cfg) as (sim, master):
         master.boot()
         _move_and_check(sim, master)
         np.testing.assert_allclose(master.feedback().force, sim.truth().forces, atol=4 * 0.05 + 0.01)
-    finally:
-        master.shutdown()
-        sim.shutdown()
 
 
 @pytest.mark.parametrize('fixed, named', [
@@ -660,13 +653,9 @@ def test_pdo_mappings_in_compact_storage_are_planned_to_their_declared_size(tmp_
                for index in (0x1600, 0x1A00)}
     assert entries[0x1600] == [0x60400010, 0x607A0020], entries
     assert entries[0x1A00] == [0x60410010, 0x60640020, 0x32200110], entries
-    sim, master, _ = _rig(cfg)
-    try:
+    with _rigged(cfg) as (sim, master):
         master.boot()
         _move_and_check(sim, master)
-    finally:
-        master.shutdown()
-        sim.shutdown()
 
 
 # ------------------------------------------------------------------ a load-cell module nobody here wrote
@@ -703,8 +692,7 @@ def test_the_brace_moves_with_its_load_cells_on_a_vendor_analog_module():
     true leg forces within the noise (4 sigma) and one count."""
     cfg = config(eds=str(SLAVE), load_cell_node={'node_id': 10, 'eds': str(IOX4),
                                                  'objects': ['0x7130:1', '0x7130:2', '0x7130:3']})
-    sim, master, _ = _rig(cfg)
-    try:
+    with _rigged(cfg) as (sim, master):
         master.boot()
         module_tpdo = [w.value for w in master.module_plan.mapping if w.index == 0x1A00 and w.subindex > 0]
         assert module_tpdo == [0x71300110, 0x71300210, 0x71300310]
@@ -712,9 +700,6 @@ def test_the_brace_moves_with_its_load_cells_on_a_vendor_analog_module():
         noise = float(BASE['sim']['load_cell_noise'])
         count = float(BASE['actuator']['load_cell_n_per_count'])
         np.testing.assert_allclose(master.feedback().force, sim.truth().forces, atol=4 * noise + count)
-    finally:
-        master.shutdown()
-        sim.shutdown()
 
 
 def test_a_drive_that_keeps_only_part_of_the_velocity_unit_stops_the_boot_naming_it():
@@ -731,8 +716,7 @@ def test_a_drive_that_keeps_only_part_of_the_velocity_unit_stops_the_boot_naming
                     value = (value & 0xFF000000) | 0x00B44700
                 put(index, sub, value)
             drive._put = keep_rpm
-    sim, master, _ = _rig(config(**PLANNED['nanotec']), before_start=rpm_only)
-    try:
+    with _rigged(config(**PLANNED['nanotec']), before_start=rpm_only) as (sim, master):
         before = sim.truth().lengths.copy()
         with pytest.raises(DriverInitializationError) as err:
             master.boot()
@@ -740,9 +724,6 @@ def test_a_drive_that_keeps_only_part_of_the_velocity_unit_stops_the_boot_naming
         assert 'kept 60A9h:0 = FFB44700h after FF410300h was written' in text, text
         assert 'a1 (node 1)' in text
         np.testing.assert_array_equal(sim.truth().lengths, before)
-    finally:
-        master.shutdown()
-        sim.shutdown()
 
 
 # ------------------------------------------------------------------ absolute encoders
@@ -761,12 +742,8 @@ def test_a_drive_that_cannot_home_is_refused_with_the_way_out_and_runs_with_abso
     cfg = config(eds=str(eds), load_cell_object='0x3220:1', homing_method=0)
     plan = master_for(cfg).plan()[0]
     assert not any(w.index == 0x6098 for w in plan.writes)
-    sim, master, _ = _rig(cfg)
-    try:
+    with _rigged(cfg) as (sim, master):
         master.boot()
         np.testing.assert_allclose(master.feedback().position, sim.truth().lengths, atol=2e-7)
         _move_and_check(sim, master)          # home() first: nothing to do
         assert master.homed
-    finally:
-        master.shutdown()
-        sim.shutdown()
