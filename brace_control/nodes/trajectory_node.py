@@ -166,6 +166,7 @@ class TrajectoryNode(Node):
         # the driver's and the ik node's reports: a 'started' missed while unmatched is a goal
         # aborted as "did not start" (bringup.wait_until_ready waits for both)
         self.diagnostics.watch_subscription(self._exec_sub)
+        self.diagnostics.prompt('driver')          # the driver's state, as goals are judged
         self.diagnostics.set(OK, 'idle: waiting for a goal', profile=self.profile.value)
         self.get_logger().info(
             f'{type(self.mechanism).__name__}, profile {self.profile.value}: '
