@@ -3,8 +3,8 @@
 For each of ``neck_brace_2r``, ``neck_brace_3rrr``, ``neck_brace_4rpr``,
 ``upper_limb_trainer``, ``shoulder`` and ``continuum``: each node its own process, as
 ``ros2 run`` starts them (``test_e2e.process_bring_up``, every safety limit as the YAML
-sets it), a bag of two reachable goals near the home pose replayed into
-``/brace/pose_goal``, then:
+sets it), two reachable goals near the home pose, each in a bag of its own, replayed into
+``/brace/pose_goal`` one after the other, then:
 
 * both goals succeed;
 * the drives end at the actuator values of the last goal within one encoder count + a
@@ -129,14 +129,14 @@ def _scenario(device_file: Path, node, probe, tmp_path: Path) -> None:
     lo, hi = mech.actuator_limits
     assert np.all((lo <= want) & (want <= hi))
 
-    bag = write_goal_bag(tmp_path / f'goals{next(_channels)}',
-                         # the second 4 s in: the first (up to 1.5 s of motion, after 1.7 s of
-                         # planning on a busy host and the 0.4 s lookahead) has ended by then
-                         [Goal(0.2, goals[0], 'first'), Goal(4.0, goals[1], 'second')],
-                         frame_id=str(cfg.get('base_frame')), storage='sqlite3', mechanism=mech)
-    replay(node, bag, wait_subscribers=1)
-    probe.wait(lambda: [e['state'] for e in probe.terminal()] == ['succeeded'] * 2, 30,
-               f'both goals of {name} to succeed')
+    # one bag per goal, the second replayed once the first has ended (a goal sent while the
+    # first still runs would preempt it)
+    for k, (goal, tag) in enumerate(zip(goals, ('first', 'second')), start=1):
+        bag = write_goal_bag(tmp_path / f'goals{next(_channels)}', [Goal(0.2, goal, tag)],
+                             frame_id=str(cfg.get('base_frame')), storage='sqlite3', mechanism=mech)
+        replay(node, bag, wait_subscribers=1)
+        probe.wait(lambda: len(probe.terminal()) >= k, 30, f'the {tag} goal of {name} to end')
+    assert [e['state'] for e in probe.terminal()] == ['succeeded'] * 2, probe.terminal()
 
     # drives at IK(goal): one encoder count + a CSP residue
     tol = _resolution(cfg) + 1e-6 * (1.0 if cfg['actuator'].get('kind') != 'rotary' else 10.0)
