@@ -6,14 +6,19 @@
 #        bench/stability.sh 5 test/test_operator.py
 #
 # The soaks run at full length here (issue 26): the suite runs the first 6 goals of each
-# seeded random-goal soak and 20 s of the seeded random operator; this script the 20 goals
-# (BRACE_SOAK_GOALS) and 60 s (BRACE_OPERATOR_SECONDS), same seeds, same checks. Run it and
-# record it in bench/RESULTS.md before a stop that touches the execution path.
+# seeded random-goal soak and the first 12 actions of the seeded random operator
+# (BRACE_OPERATOR_ACTIONS); this script the 20 goals (BRACE_SOAK_GOALS) and 60 s of the
+# operator (BRACE_OPERATOR_SECONDS: set, it runs that long: 74 actions), same seeds, same
+# checks. Run it and record it in bench/RESULTS.md before a stop that touches the execution
+# path. The operator soak alone, its summary line kept:
+#
+#   STABILITY_KEEP_LOGS=1 bench/stability.sh 1 -s test/test_operator_property.py
+#   grep '^seed' bench/stability-logs/run-1.log
 #
 # Each run is a fresh pytest process (its own ROS_DOMAIN_ID, test/conftest.py). Prints one
 # line per run (exit code, passed/failed counts, seconds, load average) and a summary; the
-# log of every failed run is kept in bench/stability-logs/. Exit code: the number of failed
-# runs (0: all passed).
+# log of every failed run is kept in bench/stability-logs/ (of every run with
+# STABILITY_KEEP_LOGS=1). Exit code: the number of failed runs (0: all passed).
 set -uo pipefail
 cd "$(dirname "$0")/.."
 runs="${1:-10}"
@@ -42,7 +47,7 @@ for i in $(seq 1 "$runs"); do
     if [ "$rc" -ne 0 ]; then
         failed=$((failed + 1))
         grep -E '^(FAILED|ERROR)' "$log" | sed 's/^/        /'
-    else
+    elif [ -z "${STABILITY_KEEP_LOGS:-}" ]; then
         rm -f "$log"
     fi
 done

@@ -154,24 +154,33 @@ class Ros:
         it is matched already, and the session's participant does not make and destroy a
         reader and a writer per try (an endpoint destroyed while a remote participant's lease
         expires is the Fast DDS deadlock of eProsima/Fast-DDS#6502)."""
+        return name in self.nodes_answering(probe, [name], timeout)
+
+    def nodes_answering(self, probe: Node, names: Sequence[str], timeout: float = 1.0) -> list[str]:
+        """The nodes of ``names`` that answer (:meth:`node_answers`) within ``timeout`` s,
+        asked at once: a silent node costs the one ``timeout`` window each of them gets, not
+        one window after the other."""
         from rcl_interfaces.srv import ListParameters
-        key = (probe, name.lstrip('/'))
-        client = self._answer_clients.get(key)
-        if client is None:
-            client = probe.create_client(ListParameters, f'/{key[1]}/list_parameters')
-            self._answer_clients[key] = client
+        clients = {}
+        for name in names:
+            key = (probe, name.lstrip('/'))
+            if key not in self._answer_clients:
+                self._answer_clients[key] = probe.create_client(ListParameters, f'/{key[1]}/list_parameters')
+            clients[name] = self._answer_clients[key]
         deadline = time.monotonic() + timeout
-        if not client.wait_for_service(timeout_sec=0.0):
-            self.spin_until(lambda: client.service_is_ready() or time.monotonic() > deadline,
-                            timeout + 1.0)
-        if not client.service_is_ready():
-            return False
-        future = client.call_async(ListParameters.Request(depth=1))
-        self.spin_until(lambda: future.done() or time.monotonic() > deadline, timeout + 1.0)
-        if not future.done():
-            client.remove_pending_request(future)
-            return False
-        return future.exception() is None
+        futures: dict[str, Any] = {}
+
+        def settled() -> bool:
+            for name, client in clients.items():
+                if name not in futures and client.service_is_ready():
+                    futures[name] = client.call_async(ListParameters.Request(depth=1))
+            return (len(futures) == len(clients) and all(f.done() for f in futures.values())) \
+                or time.monotonic() > deadline
+        self.spin_until(settled, timeout + 1.0)
+        for name, future in futures.items():
+            if not future.done():
+                clients[name].remove_pending_request(future)
+        return [n for n in names if n in futures and futures[n].done() and futures[n].exception() is None]
 
     def wait_node_answers(self, probe: Node, name: str, timeout: float,
                           stop: Callable[[], bool] = lambda: False) -> None:

@@ -112,12 +112,14 @@ def test_cli_stops_cleanly_on_sigint_and_sigterm(ros, mode):
             for name in ('ik_node', 'kinetics_node'):
                 ros.wait_node_answers(probe, name, timeout=20, stop=lambda: proc.poll() is not None)
             assert proc.poll() is None, proc.communicate()[1][-2000:]
+            # the probe hears them now (so its silence below is theirs, not the probe's)
+            assert ros.nodes_answering(probe, MY_NODES, 20) == MY_NODES
             proc.send_signal(sig)
             _, err = proc.communicate(timeout=30)
             assert proc.returncode == 0, err[-2000:]
             # gone: no node of that name answers any more (the graph keeps a killed
             # process's nodes for a while, see ros_helpers.Ros.node_answers)
-            alive = [n for n in ('ik_node', 'kinetics_node') if ros.node_answers(probe, n, 2.0)]
+            alive = ros.nodes_answering(probe, MY_NODES, 2.0)
             assert not alive, f'{alive} still answer after brace-bringup exited'
         finally:
             if proc.poll() is None:
