@@ -635,22 +635,85 @@ def nodes_already_running(names: Sequence[str], stop: threading.Event | None = N
         probe.destroy_node()
 
 
+class RivalWatch:
+    """Tells other ``brace-bringup`` processes of this one, and this one of a rival.
+
+    The graph watch before the start (:func:`nodes_already_running`) sees a running stack
+    only once DDS discovery has found it, which on a loaded host can take longer than its
+    window. So every bring-up also announces itself on :data:`~.nodes.topics.BRINGUP`
+    (latched: a bring-up that joins later still gets it, whenever discovery completes) with
+    its start time, process, host, namespace and nodes. A bring-up that learns of another
+    one in its namespace, running any of its nodes and started before it, has a
+    :attr:`rival`: it stops its own stack (the earlier one keeps running; it sees the later
+    one's announcement and ignores it).
+    """
+
+    def __init__(self, node: Any, names: Sequence[str], namespace: str = '/') -> None:
+        import socket
+
+        from diagnostic_msgs.msg import DiagnosticStatus
+
+        from .nodes.msgs import status_msg
+        self.names = tuple(names)
+        self.namespace = namespace
+        self.key = (time.time_ns(), socket.gethostname(), os.getpid())
+        self.rival: dict[str, Any] | None = None
+        self._node = node
+        self._pub = node.create_publisher(DiagnosticStatus, topics.BRINGUP, topics.LATCHED_QOS)
+        self._sub = node.create_subscription(DiagnosticStatus, topics.BRINGUP, self._on_announcement,
+                                             topics.LATCHED_QOS)
+        self._pub.publish(status_msg('brace_bringup', 'running', started=self.key[0], host=self.key[1],
+                                     pid=self.key[2], namespace=namespace, nodes=list(self.names)))
+
+    def _on_announcement(self, msg: Any) -> None:
+        from .nodes.msgs import status_values
+        v = status_values(msg)
+        try:
+            key = (int(v['started']), v['host'], int(v['pid']))
+        except (KeyError, ValueError):
+            return                                  # not a bring-up's announcement
+        shared = sorted(set(v.get('nodes', '').split(',')) & set(self.names))
+        if key < self.key and v.get('namespace') == self.namespace and shared and self.rival is None:
+            self.rival = {'nodes': shared, 'pid': key[2], 'host': key[1],
+                          'before_s': (self.key[0] - key[0]) * 1e-9}
+
+    def describe(self) -> str:
+        """What the rival runs, for the error message ('' when none)."""
+        r = self.rival
+        if r is None:
+            return ''
+        return (f'{", ".join(r["nodes"])} already running on ROS_DOMAIN_ID '
+                f'{os.environ.get("ROS_DOMAIN_ID", "0")}: brace-bringup pid {r["pid"]} on {r["host"]}, '
+                f'started {r["before_s"]:.1f} s before this one; two drivers would command the same '
+                'drives. Stopping this one')
+
+    def close(self) -> None:
+        self._node.destroy_subscription(self._sub)
+        self._node.destroy_publisher(self._pub)
+
+
 def _run_in_process(args: argparse.Namespace, extra: list[str], stop: threading.Event) -> int:
     bringup = BringUp(args.config, sim=not args.no_sim, nodes=args.nodes, extra_args=extra,
                       executor=args.executor, manual_lifecycle=args.manual_lifecycle)
     log = bringup.helper.get_logger()
+    rivals = RivalWatch(bringup.helper, bringup.names, _namespace(extra))
     bringup.start()
     log.info(f'{", ".join(bringup.names)} up ({bringup.config_path}); Ctrl-C to stop')
     if args.manual_lifecycle and DRIVER in bringup.names:
         log.info(_MANUAL_HINT)
+    rc = 0
     while not stop.wait(0.2):
         if not bringup.running:
             log.error('executor stopped unexpectedly')
             bringup.shutdown()
             return 1
+        if rivals.rival is not None:
+            log.error(rivals.describe())
+            rc = 1
+            break
     log.info('shutting down: disabling the drives first')
     bringup.shutdown()
-    return 0
+    return rc
 
 
 def _run_processes(args: argparse.Namespace, extra: list[str], stop: threading.Event) -> int:
@@ -659,8 +722,18 @@ def _run_processes(args: argparse.Namespace, extra: list[str], stop: threading.E
     from .nodes.runner import EXIT_CONFIG
     group = ProcessBringUp(args.config, sim=not args.no_sim, nodes=args.nodes, extra_args=extra,
                            manual_lifecycle=args.manual_lifecycle)
+    from rclpy.executors import SingleThreadedExecutor
+
+    from .nodes.spin import BackgroundSpinner
     helper = rclpy.create_node('brace_bringup')
     log = helper.get_logger()
+    # the announcements on a node of their own, spun beside the main thread (which only
+    # waits): the helper stays free for disable_drives' own spinning
+    watcher = rclpy.create_node('brace_bringup_rivals')
+    rivals = RivalWatch(watcher, group.names, _namespace(extra))
+    executor = SingleThreadedExecutor()
+    executor.add_node(watcher)
+    spinner = BackgroundSpinner(executor, 'bringup-rivals').start()
     group.start()
     log.info(f'{", ".join(group.names)} started as processes; Ctrl-C to stop')
     if args.manual_lifecycle and DRIVER in group.names:
@@ -673,6 +746,12 @@ def _run_processes(args: argparse.Namespace, extra: list[str], stop: threading.E
             # a node that found a configuration error (exit 2) makes it the bring-up's
             rc = EXIT_CONFIG if EXIT_CONFIG in dead.values() else 1
             break
+        if rivals.rival is not None:
+            log.error(rivals.describe())
+            rc = 1
+            break
+    spinner.stop()
+    executor.shutdown()
     if DRIVER in group.names and group.procs[DRIVER].poll() is None:
         ok, msg = disable_drives(helper)
         (log.info if ok else log.error)(f'drives disabled: {msg}' if ok
@@ -682,6 +761,8 @@ def _run_processes(args: argparse.Namespace, extra: list[str], stop: threading.E
     if bad:
         log.error(f'exit codes: {bad}')
         rc = rc or 1
+    rivals.close()
+    watcher.destroy_node()
     helper.destroy_node()
     return rc
 

@@ -182,6 +182,73 @@ def test_a_second_bringup_is_refused_while_one_runs(ros):
         first.communicate(timeout=30)
 
 
+def _announce(node, *, started: int, nodes, namespace: str = '/', pid: int = 4242, host: str = 'elsewhere'):
+    """A brace-bringup's announcement on /brace/bringup, as another process would send it."""
+    from diagnostic_msgs.msg import DiagnosticStatus
+
+    from brace_control.nodes import topics
+    from brace_control.nodes.msgs import status_msg
+    pub = node.create_publisher(DiagnosticStatus, topics.BRINGUP, topics.LATCHED_QOS)
+    pub.publish(status_msg('brace_bringup', 'running', started=started, host=host, pid=pid,
+                           namespace=namespace, nodes=list(nodes)))
+    return pub
+
+
+@pytest.mark.ros
+def test_a_bringup_learns_of_an_earlier_one_running_its_nodes_whenever_discovery_finds_it(ros):
+    """RivalWatch: the announcement is latched, so it arrives however late discovery is; only
+    an EARLIER bring-up, in the same namespace, running one of these nodes, is a rival."""
+    from brace_control.bringup import RivalWatch
+    me = ros.node(f'rival_me_{next(_ids)}')
+    watch = RivalWatch(me, ['ik_node', 'kinetics_node'])
+    others = ros.node(f'rival_others_{next(_ids)}')
+    t = watch.key[0]
+    # not rivals: later, another namespace, no shared node; each announced before the rival,
+    # and the rival last, so that once it is seen the others have been delivered too
+    pubs = [_announce(others, started=t + 10**9, nodes=['ik_node'], pid=1),
+            _announce(others, started=t - 10**9, nodes=['ik_node'], namespace='/left', pid=2),
+            _announce(others, started=t - 10**9, nodes=['trajectory_node'], pid=3)]
+    ros.spin_until(lambda: all(p.get_subscription_count() >= 1 for p in pubs), 10, 'the announcements matched')
+    ros.spin_for(0.5)
+    assert watch.rival is None, watch.rival
+    pubs.append(_announce(others, started=t - 3 * 10**9, nodes=['kinetics_node', 'ik_node'], pid=4))
+    ros.spin_until(lambda: watch.rival is not None, 10, 'the earlier bring-up to be seen')
+    assert watch.rival['pid'] == 4 and watch.rival['nodes'] == ['ik_node', 'kinetics_node']
+    assert watch.rival['before_s'] == pytest.approx(3.0)
+    text = watch.describe()
+    assert 'ik_node, kinetics_node already running' in text and 'pid 4 on elsewhere' in text, text
+    watch.close()
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+@pytest.mark.parametrize('mode', [[], ['--processes']], ids=['one-process', 'processes'])
+def test_a_bringup_that_finds_an_earlier_one_after_its_start_stops_its_stack(ros, mode):
+    """Discovery slower than the graph watch before the start (seen in a full test run on a
+    loaded host: the second bring-up started a whole stack beside the first): the bring-up
+    still learns of the earlier one from its announcement, stops its own nodes and exits 1
+    with the reason. The earlier one here is an announcement only (no node answers), so the
+    watch before the start finds nothing."""
+    probe = ros.node(f'probe_rival_{next(_ids)}')
+    pub = _announce(probe, started=time.time_ns() - 5 * 10**9, nodes=['ik_node'])
+    proc = subprocess.Popen(
+        [sys.executable, '-m', 'brace_control.bringup', str(LUMBAR), *mode, '--nodes', 'ik_node', 'kinetics_node',
+         '--ros-args', '-p', f'can.channel:=rival{os.getpid()}x{next(_ids)}'],
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        ros.spin_until(lambda: proc.poll() is not None, 60, 'the later bring-up to stop')
+        err = proc.communicate(timeout=10)[1]
+        assert proc.returncode == 1, err[-2000:]
+        assert 'ik_node already running' in err and 'pid 4242 on elsewhere' in err, err[-2000:]
+        # it had started its nodes (the graph watch found nothing) and stopped them
+        assert 'started as processes' in err or ' up (' in err, err[-2000:]
+    finally:
+        probe.destroy_publisher(pub)
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+
+
 # docs/safety.md §20
 def test_a_second_master_on_the_bus_is_refused_and_the_first_keeps_running():
     from brace_control.can import BraceMaster, DriverInitializationError

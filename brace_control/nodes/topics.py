@@ -12,6 +12,7 @@ __all__ = [
     'ACTUATOR_SETPOINT', 'JOINT_STATES', 'POSE', 'POSE_WITH_COVARIANCE', 'WRENCH',
     'GOAL_STATUS', 'EXECUTION_STATUS', 'DRIVER_STATE', 'DIAGNOSTICS', 'SIM_JOINT_STATES',
     'SIM_POSE', 'SIM_WRENCH', 'WRENCH_GOAL', 'INTERACTION_GOAL', 'SIM_BODY_REST', 'SIM_BODY_POSE',
+    'BRINGUP',
     'GOAL_QOS', 'TRAJECTORY_QOS', 'SETPOINT_QOS', 'STATE_QOS', 'MEASURED_QOS', 'STATUS_QOS',
     'GOAL_STATUS_QOS', 'GOAL_STATUS_DEPTH',
     'LATCHED_QOS', 'DIAGNOSTICS_QOS',
@@ -58,6 +59,10 @@ EXECUTION_STATUS = '/brace/execution_status'
 DRIVER_STATE = '/brace/driver_state'
 #: ``diagnostic_msgs/DiagnosticArray`` from every node
 DIAGNOSTICS = '/diagnostics'
+#: ``diagnostic_msgs/DiagnosticStatus``, latched, one per running ``brace-bringup``: when it
+#: started, its process, host, namespace and nodes (of two that run the same nodes, the later
+#: one stops)
+BRINGUP = '/brace/bringup'
 
 # ------------------------------------------------------------------- simulation
 #: the simulator's ground truth (``can.sim`` only), same conventions as the measured topics
