@@ -579,6 +579,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 #: (DDS discovery of a running node on this machine: 0.15-0.7 s measured on a quiet host,
 #: bench/RESULTS.md; 1.5 s was not enough once in a full test run on a loaded one)
 GRAPH_WATCH_S = 3.0
+#: s a bring-up in processes mode listens for an earlier one's announcement after its start
+#: (:class:`RivalWatch`; discovery on one machine takes seconds at worst)
+RIVAL_WATCH_S = 30.0
 #: s a node found in the graph has to answer before it counts as gone (a killed process's
 #: nodes stay in the graph until their lease runs out); its service's discovery and answer
 #: took longer than 2 s in test runs on a loaded host
@@ -645,7 +648,8 @@ class RivalWatch:
     its start time, process, host, namespace and nodes. A bring-up that learns of another
     one in its namespace, running any of its nodes and started before it, has a
     :attr:`rival`: it stops its own stack (the earlier one keeps running; it sees the later
-    one's announcement and ignores it).
+    one's announcement and ignores it). In processes mode it listens for
+    :data:`RIVAL_WATCH_S` after the start; its announcement stays up while it runs.
     """
 
     def __init__(self, node: Any, names: Sequence[str], namespace: str = '/') -> None:
@@ -728,12 +732,15 @@ def _run_processes(args: argparse.Namespace, extra: list[str], stop: threading.E
     helper = rclpy.create_node('brace_bringup')
     log = helper.get_logger()
     # the announcements on a node of their own, spun beside the main thread (which only
-    # waits): the helper stays free for disable_drives' own spinning
+    # waits): the helper stays free for disable_drives' own spinning. Spun for the first
+    # RIVAL_WATCH_S only: after that this process makes no DDS calls of its own until the
+    # shutdown (a stuck native call would keep the main thread from stopping the children)
     watcher = rclpy.create_node('brace_bringup_rivals')
     rivals = RivalWatch(watcher, group.names, _namespace(extra))
     executor = SingleThreadedExecutor()
     executor.add_node(watcher)
-    spinner = BackgroundSpinner(executor, 'bringup-rivals').start()
+    spinner: BackgroundSpinner | None = BackgroundSpinner(executor, 'bringup-rivals').start()
+    watch_until = time.monotonic() + RIVAL_WATCH_S
     group.start()
     log.info(f'{", ".join(group.names)} started as processes; Ctrl-C to stop')
     if args.manual_lifecycle and DRIVER in group.names:
@@ -750,7 +757,11 @@ def _run_processes(args: argparse.Namespace, extra: list[str], stop: threading.E
             log.error(rivals.describe())
             rc = 1
             break
-    spinner.stop()
+        if spinner is not None and time.monotonic() > watch_until:
+            spinner.stop()
+            spinner = None
+    if spinner is not None:
+        spinner.stop()
     executor.shutdown()
     if DRIVER in group.names and group.procs[DRIVER].poll() is None:
         ok, msg = disable_drives(helper)
