@@ -336,13 +336,35 @@ def identify(F: dict[tuple[int, int, int], np.ndarray], jogs: dict[int, tuple[fl
 
 
 #: encoder resolutions a corrected counts-per-revolution snaps to (counts per motor turn)
-def _snap_cpr(value: float, believed: int) -> int:
-    candidates = {believed * 2 ** e for e in range(-4, 5)}
-    for base in (250, 256, 360, 500, 512, 1000, 1024, 2000, 2048, 2500, 4000, 4096, 5000, 8192,
-                 10000, 16384, 20000, 32768, 65536, 131072, 262144, 1 << 20, 1 << 23):
-        candidates |= {base, base * 4}
-    best = min(candidates, key=lambda c: abs(c - value))
-    return int(best) if abs(best - value) <= 0.08 * value else int(round(value))
+#: how close (relative) a measured counts per revolution must be to the believed one times a
+#: power of two to be taken for it, before any other encoder resolution: the load cells measure
+#: the jog's scale to about a percent (a soft body's creep, a busy host's late reading), and
+#: 4000 and 4096 counts are 2.4 % apart
+FAMILY_WINDOW = 0.03
+
+
+#: usual encoder resolutions (counts per motor turn; each also x4, quadrature)
+USUAL_CPR = (250, 256, 360, 500, 512, 1000, 1024, 2000, 2048, 2500, 4000, 4096, 5000, 8192,
+             10000, 16384, 20000, 32768, 65536, 131072, 262144, 1 << 20, 1 << 23)
+
+
+def _snap_cpr(value: float, believed: int) -> tuple[int, list[int]]:
+    """The counts per revolution a measured ``value`` is, and the other usual resolutions as
+    close to it (within :data:`FAMILY_WINDOW`: the measurement cannot tell them apart).
+
+    The believed one times a power of two (a quadrature factor, another interpolation) within
+    :data:`FAMILY_WINDOW` comes first; else the nearest usual resolution within 8 %; else
+    ``value`` rounded."""
+    family = {believed * 2 ** e for e in range(-4, 5)}
+    usual = set(family) | {c for base in USUAL_CPR for c in (base, base * 4)}
+    near = min(family, key=lambda c: abs(c - value))
+    if abs(near - value) <= FAMILY_WINDOW * value:
+        chosen = int(near)
+    else:
+        best = min(usual, key=lambda c: abs(c - value))
+        chosen = int(best) if abs(best - value) <= 0.08 * value else int(round(value))
+    others = sorted(int(c) for c in usual if c != chosen and abs(c - value) <= FAMILY_WINDOW * value)
+    return chosen, others
 
 
 # ------------------------------------------------------------------ the session
@@ -580,11 +602,16 @@ def run_check(session: Session, *, axes: Sequence[int] | None = None, jog: float
             continue
         if f.sign < 0:
             new_pol[phys] = -polarity[phys]
+        others: list[int] = []
         if abs(f.scale - 1.0) > SCALE_TOLERANCE:
-            new_cpr[phys] = _snap_cpr(cpr[phys] / f.scale, int(cpr[phys]))
+            new_cpr[phys], others = _snap_cpr(cpr[phys] / f.scale, int(cpr[phys]))
         lines.append(f'{names[f.axis]}: moved {names[f.actuator]}, sign {f.sign:+d}, scale {f.scale:.3f} '
                      f'(+- {f.stderr:.3f}), following error {f.following_error * (1e3 if not session.rotary else 180 / math.pi):.3f} '
                      f'{"mm" if not session.rotary else "deg"}')
+        if others:
+            lines.append(f'{names[f.actuator]}: {int(new_cpr[phys])} counts per revolution proposed '
+                         f'({cpr[phys] / f.scale:.0f} measured); {", ".join(map(str, others))} would fit '
+                         'as well: check the encoder\'s data sheet')
     # per physical actuator: the load cells (read through the node that drives it)
     gains = _per_axis(cfg.get_path('actuator.load_cell_gain', 1.0), n)
     new_offsets = _per_axis(cfg.get_path('actuator.load_cell_offset', 0.0), n).copy()

@@ -163,6 +163,22 @@ def test_calibrate_load_cell_with_the_simulators_reference_load(tmp_path, capsys
     assert written['load_cell_gain'] == patch['actuator.load_cell_gain']
 
 
+@pytest.mark.parametrize('measured, believed, proposed, also', [
+    (4040.0, 8192, 4096, [4000]),      # a scale off by 1 % (a full run on a busy host): 2x, not 4000
+    (4096.0, 8192, 4096, [4000]),
+    (16300.0, 8192, 16384, [16000]),
+    (3600.0, 8192, 3600, []),          # no resolution of the table within 8 %: as measured
+    (2500.0, 8192, 2500, []),
+    (10000.0, 4096, 10000, []),
+    (7700.0, 8192, 8000, []),          # no power of two within 3 %: the usual 2000 x 4
+    (7000.0, 8192, 7000, []),
+])
+def test_a_measured_counts_per_revolution_snaps_to_a_power_of_two_of_the_believed_first(measured, believed,
+                                                                                        proposed, also):
+    from brace_control.commission import _snap_cpr
+    assert _snap_cpr(measured, believed) == (proposed, also)
+
+
 # ------------------------------------------------------------------ everything at once, and the corrected file at work
 
 ALL_AT_ONCE = {'node_ids': [3, 1, 9], 'polarity': [1, -1, 1], 'encoder_counts_per_rev': [8192, 8192, 4096],
