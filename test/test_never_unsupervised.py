@@ -236,7 +236,19 @@ def test_a_bringup_that_finds_an_earlier_one_after_its_start_stops_its_stack(ros
          '--ros-args', '-p', f'can.channel:=rival{os.getpid()}x{next(_ids)}'],
         cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        ros.spin_until(lambda: proc.poll() is not None, 60, 'the later bring-up to stop')
+        deadline = time.monotonic() + 60
+        ros.spin_until(lambda: proc.poll() is not None or time.monotonic() > deadline, 61)
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            try:
+                err = proc.communicate(timeout=15)[1]
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                err = proc.communicate()[1]
+            seen = 'already running' in err
+            pytest.fail(f'the later bring-up did not stop within 60 s ('
+                        f'{"it saw the earlier one: its shutdown hung" if seen else "it never saw the earlier one"}'
+                        f'); its stderr: {err[-3000:]}')
         err = proc.communicate(timeout=10)[1]
         assert proc.returncode == 1, err[-2000:]
         assert 'ik_node already running' in err and 'pid 4242 on elsewhere' in err, err[-2000:]
