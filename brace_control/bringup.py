@@ -50,6 +50,7 @@ import subprocess
 import sys
 import threading
 import time
+import weakref
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -124,37 +125,55 @@ def call_trigger(node: Any, service: str, *, timeout: float = 5.0,
     from std_srvs.srv import Trigger
     if resend_s is None and service.rstrip('/').rsplit('/', 1)[-1] in IDEMPOTENT_SERVICES:
         resend_s = RESEND_S
-    client = node.create_client(Trigger, service)
-    try:
-        if not client.wait_for_service(timeout_sec=timeout):
-            return False, f'{service} not available'
-        deadline = time.monotonic() + timeout
-        futures: list[Any] = []
+    client = _trigger_client(node, service)
+    if not client.wait_for_service(timeout_sec=timeout):
+        return False, f'{service} not available'
+    deadline = time.monotonic() + timeout
+    futures: list[Any] = []
 
-        def answered() -> Any:
-            return next((f for f in futures if f.done()), None)
-        try:
-            while True:
-                futures.append(client.call_async(Trigger.Request()))
-                end = deadline if resend_s is None else min(deadline, time.monotonic() + resend_s)
-                while answered() is None and time.monotonic() < end:
-                    if executor is None:
-                        rclpy.spin_once(node, timeout_sec=min(0.05, max(end - time.monotonic(), 0.0)))
-                    else:
-                        time.sleep(0.005)
-                first = answered()
-                if first is not None:
-                    res = first.result()
-                    return bool(res.success), str(res.message)
-                if time.monotonic() >= deadline:
-                    asked = f' (asked {len(futures)} times)' if len(futures) > 1 else ''
-                    return False, f'{service}: no answer within {timeout} s{asked}'
-        finally:
-            for f in futures:
-                if not f.done():
-                    f.cancel()
+    def answered() -> Any:
+        return next((f for f in futures if f.done()), None)
+    try:
+        while True:
+            futures.append(client.call_async(Trigger.Request()))
+            end = deadline if resend_s is None else min(deadline, time.monotonic() + resend_s)
+            while answered() is None and time.monotonic() < end:
+                if executor is None:
+                    rclpy.spin_once(node, timeout_sec=min(0.05, max(end - time.monotonic(), 0.0)))
+                else:
+                    time.sleep(0.005)
+            first = answered()
+            if first is not None:
+                res = first.result()
+                return bool(res.success), str(res.message)
+            if time.monotonic() >= deadline:
+                asked = f' (asked {len(futures)} times)' if len(futures) > 1 else ''
+                return False, f'{service}: no answer within {timeout} s{asked}'
     finally:
-        node.destroy_client(client)
+        for f in futures:
+            if not f.done():
+                forget = getattr(client, 'remove_pending_request', None)
+                if forget is not None:
+                    forget(f)
+                f.cancel()
+
+
+#: node -> {service: its Trigger client}: made once, kept for the node's life (see
+#: :func:`_trigger_client`)
+_TRIGGER_CLIENTS: 'weakref.WeakKeyDictionary[Any, dict[str, Any]]' = weakref.WeakKeyDictionary()
+
+
+def _trigger_client(node: Any, service: str) -> Any:
+    """``node``'s client of the ``std_srvs/Trigger`` ``service``, made on first use and kept:
+    destroying a client while another thread's executor waits on the node's entities hung a
+    test run (the spinner stuck in rclpy's wait-set teardown holding the interpreter lock,
+    the same Fast DDS class as eProsima/Fast-DDS#6502); a node's clients go with the node."""
+    from std_srvs.srv import Trigger
+    clients = _TRIGGER_CLIENTS.setdefault(node, {})
+    client = clients.get(service)
+    if client is None:
+        client = clients[service] = node.create_client(Trigger, service)
+    return client
 
 
 #: the stack's topic links: (topic, publishing node, subscribing node)
