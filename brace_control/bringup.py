@@ -710,10 +710,6 @@ class RivalWatch:
                 f'started {r["before_s"]:.1f} s before this one; two drivers would command the same '
                 'drives. Stopping this one')
 
-    def close(self) -> None:
-        self._node.destroy_subscription(self._sub)
-        self._node.destroy_publisher(self._pub)
-
 
 def _run_in_process(args: argparse.Namespace, extra: list[str], stop: threading.Event) -> int:
     bringup = BringUp(args.config, sim=not args.no_sim, nodes=args.nodes, extra_args=extra,
@@ -741,13 +737,12 @@ def _run_in_process(args: argparse.Namespace, extra: list[str], stop: threading.
 
 def _run_processes(args: argparse.Namespace, extra: list[str], stop: threading.Event) -> int:
     import rclpy
-
-    from .nodes.runner import EXIT_CONFIG
-    group = ProcessBringUp(args.config, sim=not args.no_sim, nodes=args.nodes, extra_args=extra,
-                           manual_lifecycle=args.manual_lifecycle)
     from rclpy.executors import SingleThreadedExecutor
 
+    from .nodes.runner import EXIT_CONFIG
     from .nodes.spin import BackgroundSpinner
+    group = ProcessBringUp(args.config, sim=not args.no_sim, nodes=args.nodes, extra_args=extra,
+                           manual_lifecycle=args.manual_lifecycle)
     helper = rclpy.create_node('brace_bringup')
     log = helper.get_logger()
     # the announcements on a node of their own, spun beside the main thread (which only
@@ -791,8 +786,7 @@ def _run_processes(args: argparse.Namespace, extra: list[str], stop: threading.E
     if bad:
         log.error(f'exit codes: {bad}')
         rc = rc or 1
-    rivals.close()
-    watcher.destroy_node()
+    watcher.destroy_node()                    # its announcement with it
     helper.destroy_node()
     return rc
 

@@ -335,7 +335,6 @@ def identify(F: dict[tuple[int, int, int], np.ndarray], jogs: dict[int, tuple[fl
     return perm, findings, margin
 
 
-#: encoder resolutions a corrected counts-per-revolution snaps to (counts per motor turn)
 #: how close (relative) a measured counts per revolution must be to the believed one times a
 #: power of two to be taken for it, before any other encoder resolution: the load cells measure
 #: the jog's scale to about a percent (a soft body's creep, a busy host's late reading), and

@@ -217,7 +217,6 @@ def test_a_bringup_learns_of_an_earlier_one_running_its_nodes_whenever_discovery
     assert watch.rival['before_s'] == pytest.approx(3.0)
     text = watch.describe()
     assert 'ik_node, kinetics_node already running' in text and 'pid 4 on elsewhere' in text, text
-    watch.close()
 
 
 @pytest.mark.ros
