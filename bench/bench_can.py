@@ -57,16 +57,16 @@ def master_run(rate: float, seconds: float, channel: str, spin_s: float,
     sim = SimulatedBrace(cfg, channel=channel)
     master = BraceMaster.from_device_config(cfg, channel=channel, spin_s=spin_s,
                                             thread_priority=priority)
-    master.stats = PeriodStats(1.0 / rate, window=int(rate * seconds) + 10)
+    master.cycle.stats = PeriodStats(1.0 / rate, window=int(rate * seconds) + 10)
     stop = threading.Event()
     costs: list[float] = []
-    body = master._cycle
+    body = master.cycle.cycle
 
     def timed_cycle(k: int, t: float) -> None:        # work per cycle (SYNC + RPDOs + monitors)
         t0 = time.perf_counter()
         body(k, t)
         costs.append(time.perf_counter() - t0)
-    master._cycle = timed_cycle                       # type: ignore[method-assign]
+    master.cycle.cycle = timed_cycle                       # type: ignore[method-assign]
 
     def stream() -> None:             # 200 Hz setpoints: ring lifts ±3 mm at 0.25 Hz
         t0 = time.perf_counter()

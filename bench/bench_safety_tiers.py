@@ -96,16 +96,16 @@ def cost() -> None:
 
 
 def in_cycle(seconds: float = 3.0) -> None:
-    """The whole per-cycle load check (``_monitor_loads``) in the lumbar rig, enabled, at rest."""
+    """The whole per-cycle load check (``Monitors.monitor_loads``) in the lumbar rig, enabled, at rest."""
     sim, master = rigs._rig('lumbar_brace')
     took: list[float] = []
-    inner = master._monitor_loads
+    inner = master.monitors.monitor_loads
 
     def timed(now, tracking):
         t0 = time.perf_counter()
         inner(now, tracking)
         took.append(time.perf_counter() - t0)
-    master._monitor_loads = timed
+    master.monitors.monitor_loads = timed
     try:
         time.sleep(seconds)                 # the SYNC thread runs the cycles meanwhile
     finally:

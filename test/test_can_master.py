@@ -244,14 +244,14 @@ def test_a_repeat_the_cycle_takes_alone_is_at_rest_in_the_senders_terms(rig):
     for k in range(1, n - 2):                            # 4 ms apart, stamped as sent
         master.set_targets(q0 + delta * k / n, stamp=k * dt)
         time.sleep(dt)
-    wait_for(lambda: master._last_sp_seq == master._setpoint_seq, 0.2, 'the ramp taken')
+    wait_for(lambda: master.stream.taken_seq == master.stream.seq, 0.2, 'the ramp taken')
     ramp = master.executor._stream[1].copy()
     assert np.abs(ramp - delta / (n * dt)).max() < 0.05 * np.abs(delta).max() / (n * dt), ramp
-    with master._exec_lock:                              # the cycle takes none of these three ...
+    with master.motion.lock:                             # the cycle takes none of these three ...
         master.set_targets(q0 + delta * (n - 2) / n, stamp=(n - 2) * dt)
         master.set_targets(q0 + delta, stamp=(n - 1) * dt)
         master.set_targets(q0 + delta, stamp=n * dt)     # ... but this repeat of the last one
-    wait_for(lambda: master._last_sp_seq == master._setpoint_seq, 0.2, 'the repeat taken')
+    wait_for(lambda: master.stream.taken_seq == master.stream.seq, 0.2, 'the repeat taken')
     position, rate, _ = master.executor._stream
     np.testing.assert_array_equal(position, q0 + delta)
     np.testing.assert_array_equal(rate, np.zeros(3))
@@ -569,7 +569,7 @@ def test_drives_stop_on_their_own_when_the_master_dies(rig):
     6007h = 3 (quick stop) when it stops. Bound: 200 ms + one heartbeat period + twice
     the slack (the simulator's own timer thread notices the silence)."""
     sim, master = rig
-    master._stop.set()                      # the SYNC thread (and the heartbeat) stops dead
+    master.cycle.stop_event.set()           # the SYNC thread (and the heartbeat) stops dead
     t = wait_for(lambda: all(sim.drive(i).state.name == 'QUICK_STOP_ACTIVE' for i in (1, 2, 3)),
                  0.3 + 2 * SLACK, 'drives in QUICK STOP ACTIVE')
     assert t <= 0.3 + 2 * SLACK

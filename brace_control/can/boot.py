@@ -1,9 +1,9 @@
 """Boot and configuration of the drives: the plan, bus, NMT, SDO set-up, PDO mapping, homing.
 
-Part of :class:`~.master.BraceMaster` (a mixin: the state it uses is created in
-``BraceMaster.__init__``). Before anything is sent, every drive's boot is planned against its
-own object dictionary (:meth:`BootMixin.plan`, :mod:`.plan`): a drive that lacks what the
-brace needs is refused with one message. Boot (:meth:`BootMixin.boot`): wait for each
+A part of :class:`~.master.BraceMaster` with its own state: the plans, the bus and the
+canopen Network it opened, the frame log. Before anything is sent, every drive's boot is
+planned against its own object dictionary (:meth:`Boot.plan`, :mod:`.plan`): a drive that
+lacks what the brace needs is refused with one message. Boot (:meth:`Boot.boot`): wait for each
 drive's boot-up or heartbeat; a drive still silent gets an NMT reset-communication, then an
 SDO probe, before it is declared missing (``can.boot_timeout``) -> NMT pre-operational -> the
 planned SDO configuration and PDO mapping (``can.sdo_timeout``, ``can.sdo_retries``) -> NMT
@@ -14,9 +14,9 @@ from __future__ import annotations
 import dataclasses
 import logging
 import struct
-import threading
 import time
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import can
 import canopen
@@ -33,7 +33,13 @@ from .state import MasterState, _Drive, _Module, _Node, interpolation_period
 from .supervision import FaultKind
 from .units import LoadInput
 
-__all__ = ['BootMixin', 'LISTEN_S']
+if TYPE_CHECKING:
+    from .cycle import Cycle
+    from .lifecycle import Lifecycle
+    from .monitors import Monitors
+    from .receive import BusTraffic, Receiver
+
+__all__ = ['Boot', 'LISTEN_S']
 
 log = logging.getLogger('brace_control.can.master')
 
@@ -46,8 +52,33 @@ PROBE_TIMEOUT_S = 0.1
 MASTER_LISTEN_S = 0.02
 
 
-class BootMixin:
-    """Planning, opening the bus, booting and configuring the drives, homing (module docstring)."""
+class Boot:
+    """Planning, opening the bus, booting and configuring the drives, homing (module docstring).
+
+    The caller (the master's API) serialises the calls. ``bus``: an already open python-can
+    bus to use instead of opening one (tests, replays); it is shut down on :meth:`close` only
+    if this part opened it.
+    """
+
+    def __init__(self, life: Lifecycle, receiver: Receiver, traffic: BusTraffic, cycle: Cycle,
+                 monitors: Monitors, *, bus: can.BusABC | None = None) -> None:
+        self._life = life
+        self._receiver = receiver
+        self._traffic = traffic
+        self._cycle = cycle
+        self._monitors = monitors
+        self._supervisor = life.supervisor
+        self.config = life.config
+        self.scaling = life.config.scaling
+        self._own_bus = bus is None
+        self.bus: can.BusABC | None = bus
+        self.network: canopen.Network | None = None
+        self._frame_log: can.Listener | None = None
+        #: each drive's boot as planned against its dictionary (:meth:`plan`, at :meth:`open`)
+        self.plans: list[BootPlan] = []
+        self.module_plan: ModulePlan | None = None
+        #: what the plans skipped and why, one line each (logged at configure)
+        self.boot_report: list[str] = []
 
     # ------------------------------------------------------------------ the plan
     def plan(self) -> list[BootPlan]:
@@ -113,7 +144,7 @@ class BootMixin:
     def _boot_settings(self, index: int) -> BootSettings:
         """What the master wants of drive ``index``, in its units (docs/can.md)."""
         cfg, sc = self.config, self.scaling
-        lo, hi = self.limits.stroke_of(index)
+        lo, hi = self._life.limits.stroke_of(index)
         home = cfg.home_lengths[index] if cfg.home_lengths is not None else None
         # in the drive's own counts (its polarity and counts per revolution)
         p = cfg.polarity[index] if cfg.polarity else 1
@@ -127,8 +158,8 @@ class BootMixin:
             period_us=round(cfg.period * 1e6), interpolation=interpolation_period(cfg.period),
             homing_method=cfg.homing_method,
             following_error_counts=max(1, round(cfg.following_error_window * sc.counts_per_unit * r)),
-            velocity_counts=round(sc.velocity_to_counts(self.limits.v_max) * r),
-            acceleration_counts=round(sc.acceleration_to_counts(self.limits.a_max) * r),
+            velocity_counts=round(sc.velocity_to_counts(self._life.limits.v_max) * r),
+            acceleration_counts=round(sc.acceleration_to_counts(self._life.limits.a_max) * r),
             soft_limits_counts=(tuple(sorted((wire(sc.to_counts(lo)), wire(sc.to_counts(hi)))))
                                 if lo > float('-inf') and hi < float('inf') else None),
             home_offset_counts=None if home is None else wire(sc.to_counts(home)),
@@ -148,70 +179,80 @@ class BootMixin:
         :raises DictionaryError: a drive's dictionary lacks what the brace needs (nothing opened).
         :raises DriverInitializationError: the interface / channel cannot be opened.
         """
-        with self._api_lock:
-            if self.state is not MasterState.CLOSED:
-                return
-            cfg = self.config
-            self.plans = self.plan()
-            log_path = cfg.frame_log
-            if self._bus is None:
-                try:
-                    # own frames back to the listener only when logging: the log then holds
-                    # both directions in bus order
-                    # virtual: frames keep the send time the master gives them (one clock
-                    # read per SYNC for the master's log and for the simulated drives)
-                    extra = {'preserve_timestamps': True} if cfg.interface == 'virtual' else {}
-                    self._bus = can.Bus(interface=cfg.interface, channel=cfg.channel,
-                                        bitrate=cfg.bitrate, receive_own_messages=bool(log_path),
-                                        **extra)
-                except (can.CanError, OSError, ValueError, ImportError) as exc:
-                    raise DriverInitializationError(
-                        f'cannot open CAN bus interface={cfg.interface!r} channel={cfg.channel!r} '
-                        f'bitrate={cfg.bitrate}: {exc}') from exc
-            self.traffic.count_tx = not log_path
-            net = StampedNetwork(self._bus)
-            net.listeners.append(BusListener(self.receiver))
-            if log_path:
-                from .framelog import open_frame_log
-                self._frame_log = open_frame_log(log_path)
-                net.listeners.append(self._frame_log)
-            self._module = None
-            if self.module_plan is not None:
-                mp = self.module_plan
-                m = _Module('load-cell module', mp.node_id, self._remote(net, mp.node_id, mp.dictionary),
-                            heartbeat=mp.heartbeat, tpdo=mp.tpdo,
-                            zeros=tuple(LoadInput.of(e.code).zero for e in mp.tpdo.entries))
-                self._module = m
-                net.subscribe(mp.tpdo.cob_id, self.receiver.module_callback(m))
-                self._subscribe_node(net, m)
-            self._drives = []
-            self.receiver.attach(self._drives, self._module)   # filled below, in place
-            for i, (name, plan) in enumerate(zip(cfg.names, self.plans)):
-                node = self._remote(net, plan.node_id, plan.dictionary)
-                zero = 0
-                if plan.load_type is not None and cfg.load_cell_object is not None:
-                    zero = LoadInput.of(plan.feedback.entries[plan.feedback.position_of('load')].code).zero
-                d = _Drive(name, plan.node_id, node, heartbeat=plan.heartbeat, index=i,
-                           rpdos=plan.rpdos, rpdo_sent=[None] * len(plan.rpdos), load_zero=zero,
-                           polarity=cfg.polarity[i] if cfg.polarity else 1,
-                           count_ratio=cfg.count_ratio[i] if cfg.count_ratio else 1.0,
-                           load_gain=cfg.load_gain[i] if cfg.load_gain else 1.0,
-                           load_offset=cfg.load_offset[i] if cfg.load_offset else 0.0)
-                self._drives.append(d)
-                net.subscribe(plan.feedback.cob_id, self.receiver.tpdo_callback(d, plan.feedback))
-                self._subscribe_node(net, d)
-            self._saturation_span()
-            net.connect()
-            self.network = net
-            self._stop.clear()
-            # silent until the boot has listened for another master (our heartbeat would make a
-            # running master stop)
-            self._heartbeat_on = False
-            if self.config.mechanism is not None:
-                warm_up(self.config.mechanism)     # its first-use imports here, not in the cycle
-            self._thread = threading.Thread(target=self._run, name='brace-can-sync', daemon=True)
-            self._thread.start()
-            self._set_state(MasterState.OPEN)
+        life = self._life
+        if life.state is not MasterState.CLOSED:
+            return
+        cfg = self.config
+        self.plans = self.plan()
+        log_path = cfg.frame_log
+        if self.bus is None:
+            try:
+                # own frames back to the listener only when logging: the log then holds
+                # both directions in bus order
+                # virtual: frames keep the send time the master gives them (one clock
+                # read per SYNC for the master's log and for the simulated drives)
+                extra = {'preserve_timestamps': True} if cfg.interface == 'virtual' else {}
+                self.bus = can.Bus(interface=cfg.interface, channel=cfg.channel,
+                                   bitrate=cfg.bitrate, receive_own_messages=bool(log_path),
+                                   **extra)
+            except (can.CanError, OSError, ValueError, ImportError) as exc:
+                raise DriverInitializationError(
+                    f'cannot open CAN bus interface={cfg.interface!r} channel={cfg.channel!r} '
+                    f'bitrate={cfg.bitrate}: {exc}') from exc
+        self._traffic.count_tx = not log_path
+        net = StampedNetwork(self.bus)
+        net.listeners.append(BusListener(self._receiver))
+        if log_path:
+            from .framelog import open_frame_log
+            self._frame_log = open_frame_log(log_path)
+            net.listeners.append(self._frame_log)
+        life.module = None
+        if self.module_plan is not None:
+            mp = self.module_plan
+            m = _Module('load-cell module', mp.node_id, self._remote(net, mp.node_id, mp.dictionary),
+                        heartbeat=mp.heartbeat, tpdo=mp.tpdo,
+                        zeros=tuple(LoadInput.of(e.code).zero for e in mp.tpdo.entries))
+            life.module = m
+            net.subscribe(mp.tpdo.cob_id, self._receiver.module_callback(m))
+            self._subscribe_node(net, m)
+        life.drives = []
+        self._receiver.attach(life.drives, life.module)   # filled below, in place
+        for i, (name, plan) in enumerate(zip(cfg.names, self.plans)):
+            node = self._remote(net, plan.node_id, plan.dictionary)
+            zero = 0
+            if plan.load_type is not None and cfg.load_cell_object is not None:
+                zero = LoadInput.of(plan.feedback.entries[plan.feedback.position_of('load')].code).zero
+            d = _Drive(name, plan.node_id, node, heartbeat=plan.heartbeat, index=i,
+                       rpdos=plan.rpdos, rpdo_sent=[None] * len(plan.rpdos), load_zero=zero,
+                       polarity=cfg.polarity[i] if cfg.polarity else 1,
+                       count_ratio=cfg.count_ratio[i] if cfg.count_ratio else 1.0,
+                       load_gain=cfg.load_gain[i] if cfg.load_gain else 1.0,
+                       load_offset=cfg.load_offset[i] if cfg.load_offset else 0.0,
+                       feedforward=plan.feedforward)
+            life.drives.append(d)
+            net.subscribe(plan.feedback.cob_id, self._receiver.tpdo_callback(d, plan.feedback))
+            self._subscribe_node(net, d)
+        self._saturation_span()
+        net.connect()
+        self.network = net
+        if self.config.mechanism is not None:
+            warm_up(self.config.mechanism)     # its first-use imports here, not in the cycle
+        # silent until the boot has listened for another master (our heartbeat would make a
+        # running master stop)
+        self._cycle.start(self.bus, net)
+        life.set_state(MasterState.OPEN)
+
+    def close(self) -> None:
+        """Stop receiving and close the bus (if this part opened it); after the cycle stopped."""
+        if self.network is not None:
+            if self.network.notifier is not None:
+                self.network.notifier.stop(1.0)
+                self.network.notifier = None
+            self.network = None
+        self._frame_log = None            # the Notifier stopped (closed) it
+        if self.bus is not None and self._own_bus:
+            self.bus.shutdown()
+        self.bus = None
 
     def _remote(self, net: canopen.Network, node_id: int, od_of: Dictionary) -> canopen.RemoteNode:
         node = canopen.RemoteNode(node_id, od_of.od)
@@ -221,8 +262,8 @@ class BootMixin:
         return node
 
     def _subscribe_node(self, net: canopen.Network, n: _Node) -> None:
-        net.subscribe(0x700 + n.node_id, self.receiver.heartbeat_callback(n))
-        net.subscribe(0x80 + n.node_id, self.receiver.emcy_callback(n))
+        net.subscribe(0x700 + n.node_id, self._receiver.heartbeat_callback(n))
+        net.subscribe(0x80 + n.node_id, self._receiver.emcy_callback(n))
 
     def _saturation_span(self) -> None:
         """The saturation threshold within what every load-cell input can show."""
@@ -234,13 +275,8 @@ class BootMixin:
         if self.module_plan is not None:
             spans += [LoadInput.of(e.code).span for e in self.module_plan.tpdo.entries]
         if spans:
-            sat = self.scaling.saturation_counts(self.limits.saturation_fraction, min(spans))
-            self.limits = dataclasses.replace(self.limits, saturation_counts=sat)
-
-    @property
-    def _nodes(self) -> list[_Node]:
-        """Every node the master supervises: the drives, and the load-cell module."""
-        return [*self._drives, *([self._module] if self._module is not None else [])]
+            sat = self.scaling.saturation_counts(self._life.limits.saturation_fraction, min(spans))
+            self._life.limits = dataclasses.replace(self._life.limits, saturation_counts=sat)
 
     # ------------------------------------------------------------------ boot
     def boot(self, *, timeout: float | None = None) -> None:
@@ -251,56 +287,58 @@ class BootMixin:
             (also latched as a BOOT_TIMEOUT fault) or rejected an SDO write (the object,
             value, abort code and drive named).
         """
-        with self._api_lock:
-            if self._supervising:
-                return                                   # booted already
-            if self.state is MasterState.CLOSED:
-                self.open()
-            self._set_state(MasterState.BOOTING)
-            limit = self.config.boot_timeout if timeout is None else timeout
-            self._await_boot_up(limit)
-            for d in self._drives:
-                self._configure(d)
-            if self._module is not None:
-                self._configure_module(self._module)
-            self._pdo_running = True
-            for n in self._nodes:
-                n.node.nmt.send_command(0x01)            # start remote node
-            self._wait(lambda: all(d.nmt == NmtState.OPERATIONAL and d.sample is not None
-                                   for d in self._drives)
-                       and (self._module is None or (self._module.samples > 0
-                                                     and self._module.nmt == NmtState.OPERATIONAL)),
-                       timeout=max(0.5, 4 * self.config.drive_heartbeat_ms * 1e-3),
-                       what='drives OPERATIONAL with their feedback TPDO')
-            for d in self._drives:
-                d.target = self._actual_counts(d)
-                d.checked = None
-            self._supervising = True
-            self._desired = State402.SWITCH_ON_DISABLED
-            self._set_state(MasterState.FAULT if self.supervisor.latched else MasterState.DISABLED)
-            log.info('CAN master: %d drives OPERATIONAL on %s', len(self._drives), self.config.channel)
+        life = self._life
+        if life.supervising:
+            return                                       # booted already
+        if life.state is MasterState.CLOSED:
+            self.open()
+        life.set_state(MasterState.BOOTING)
+        limit = self.config.boot_timeout if timeout is None else timeout
+        self._await_boot_up(limit)
+        for d in life.drives:
+            self.configure(d)
+        if life.module is not None:
+            self.configure_module(life.module)
+        life.pdo_running = True
+        for n in life.nodes:
+            n.node.nmt.send_command(0x01)            # start remote node
+        module = life.module
+        life.wait(lambda: all(d.nmt == NmtState.OPERATIONAL and d.sample is not None
+                              for d in life.drives)
+                  and (module is None or (module.samples > 0
+                                          and module.nmt == NmtState.OPERATIONAL)),
+                  timeout=max(0.5, 4 * self.config.drive_heartbeat_ms * 1e-3),
+                  what='drives OPERATIONAL with their feedback TPDO')
+        for d in life.drives:
+            d.target = life.actual_counts(d)
+            d.checked = None
+        life.supervising = True
+        life.desired = State402.SWITCH_ON_DISABLED
+        life.set_state(MasterState.FAULT if self._supervisor.latched else MasterState.DISABLED)
+        log.info('CAN master: %d drives OPERATIONAL on %s', len(life.drives), self.config.channel)
 
     def _await_boot_up(self, limit: float) -> None:
         """Each node's boot-up or heartbeat; for the silent ones an NMT reset-communication (a
         drive that booted before we listened sends its boot-up again), then an SDO probe (a
         drive that sends none), before it is declared missing."""
+        life = self._life
         deadline = time.monotonic() + limit
-        nodes = self._nodes
+        nodes = life.nodes
         listen_end = time.monotonic() + min(LISTEN_S, 0.5 * limit)
         # at least a few SYNC periods of another master's, before any write
         heard_end = time.monotonic() + MASTER_LISTEN_S
         for n in nodes:
             n.booted.wait(max(0.0, listen_end - time.monotonic()))
         time.sleep(max(0.0, heard_end - time.monotonic()))
-        other = self.foreign_master()
+        other = self._receiver.foreign_master()
         if other:
-            self._set_state(MasterState.OPEN)
+            life.set_state(MasterState.OPEN)
             raise DriverInitializationError(
                 f'another CANopen master is on {self.config.interface}:{self.config.channel}: '
                 f'{other}. Two masters would send SYNC and targets to the same drives; stop the '
                 'other master (another brace-bringup? ros2 node list) and configure again. '
                 'Nothing was sent to the drives')
-        self._heartbeat_on = True                        # the bus is ours: our heartbeat from now
+        self._cycle.heartbeat_on = True                  # the bus is ours: our heartbeat from now
         silent = [n for n in nodes if not n.booted.is_set()]
         for n in silent:
             log.info('node %d: no boot-up or heartbeat heard; NMT reset communication', n.node_id)
@@ -327,13 +365,13 @@ class BootMixin:
             n.booted.wait(max(0.0, deadline - time.monotonic()))
         missing = [n for n in nodes if not n.booted.is_set()]
         for n in missing:
-            self.supervisor.report(
+            self._supervisor.report(
                 FaultKind.BOOT_TIMEOUT,
                 f'no boot-up, heartbeat or SDO answer from node {n.node_id} within '
                 f'{limit:g} s', drive=n.name,
-                still_present=self._heartbeat_missing(n))
+                still_present=self._monitors.heartbeat_missing(n))
         if missing:
-            self._set_state(MasterState.FAULT)
+            life.set_state(MasterState.FAULT)
             raise DriverInitializationError(
                 'drive(s) did not boot: ' + ', '.join(f'{n.name} (node {n.node_id})' for n in missing)
                 + f' within can.boot_timeout = {limit:g} s (no boot-up message, no heartbeat, '
@@ -355,7 +393,7 @@ class BootMixin:
                 f'({cfg.sdo_retries + 1} attempt(s)): {exc}; a slow drive needs a larger '
                 'can.sdo_timeout') from exc
 
-    def _configure(self, d: _Drive) -> None:
+    def configure(self, d: _Drive) -> None:
         """NMT pre-operational, then the planned SDO writes, then the planned PDO mapping."""
         plan = self.plans[d.index]
         d.node.nmt.send_command(0x80)                    # enter pre-operational
@@ -393,7 +431,7 @@ class BootMixin:
                 'the 60B1h feed-forward) in it. Nothing moves; set the drive\'s units with its tool '
                 '(docs/can.md, "Units")')
 
-    def _configure_module(self, m: _Module) -> None:
+    def configure_module(self, m: _Module) -> None:
         plan: ModulePlan = self.module_plan
         m.node.nmt.send_command(0x80)
         for w in plan.writes + plan.mapping:
@@ -415,70 +453,70 @@ class BootMixin:
             state), no home offset (no mechanism model), a homing error bit (6041h bit 13),
             or a protective stop latched.
         """
-        with self._api_lock:
-            self._require_ready()
-            if not self.config.homing_method:
-                # can.homing_method 0: absolute encoders, the drives' positions are the lengths
-                # already; nothing is sent (a drive without 6098h has no homing to ask for)
-                self.homed = True
-                log.info('home: can.homing_method = 0 (absolute encoders): nothing to home')
-                return
-            if self.state is not MasterState.DISABLED:
-                raise DriverOperationError(
-                    f'home refused: the drives are {self.state.value}; homing re-zeroes the '
-                    'encoders and is only allowed with the drives disabled (call disable first)')
-            if self.config.home_lengths is None:
-                raise DriverOperationError('no home offset: the mechanism model (IK of home_pose) '
-                                           'is unavailable; pass home_lengths to MasterConfig')
-            self._tracking = False
-            self._set_state(MasterState.HOMING)
-            method = self.config.homing_method
+        life = self._life
+        life.require_ready()
+        if not self.config.homing_method:
+            # can.homing_method 0: absolute encoders, the drives' positions are the lengths
+            # already; nothing is sent (a drive without 6098h has no homing to ask for)
+            life.homed = True
+            log.info('home: can.homing_method = 0 (absolute encoders): nothing to home')
+            return
+        if life.state is not MasterState.DISABLED:
+            raise DriverOperationError(
+                f'home refused: the drives are {life.state.value}; homing re-zeroes the '
+                'encoders and is only allowed with the drives disabled (call disable first)')
+        if self.config.home_lengths is None:
+            raise DriverOperationError('no home offset: the mechanism model (IK of home_pose) '
+                                       'is unavailable; pass home_lengths to MasterConfig')
+        life.tracking = False
+        life.set_state(MasterState.HOMING)
+        method = self.config.homing_method
+        try:
+            homes = [self.scaling.to_counts(self.config.home_lengths[d.index]) for d in life.drives]
+            for d, home in zip(life.drives, homes):
+                self._sdo(d, 0x6098, 0, method)
+                if self.plans[d.index].home_offset_on_drive:
+                    self._sdo(d, 0x607C, 0, d.to_wire(home))
+            life.mode = int(OpMode.HOMING)
+            self._sdo_all(0x6060, 0, life.mode)
+            life.desired = State402.OPERATION_ENABLED
+            life.wait(lambda: life.all_in(State402.OPERATION_ENABLED), timeout=timeout,
+                      what='OPERATION ENABLED for homing')
+            life.homing_start = True
             try:
-                homes = [self.scaling.to_counts(self.config.home_lengths[d.index]) for d in self._drives]
-                for d, home in zip(self._drives, homes):
-                    self._sdo(d, 0x6098, 0, method)
-                    if self.plans[d.index].home_offset_on_drive:
-                        self._sdo(d, 0x607C, 0, d.to_wire(home))
-                self._mode = int(OpMode.HOMING)
-                self._sdo_all(0x6060, 0, self._mode)
-                self._desired = State402.OPERATION_ENABLED
-                self._wait(lambda: self._all_in(State402.OPERATION_ENABLED), timeout=timeout,
-                           what='OPERATION ENABLED for homing')
-                self._homing_start = True
-                try:
-                    def done() -> bool:
-                        for d in self._drives:
-                            sw = d.sample.statusword if d.sample else 0
-                            if sw & Statusword.OP_SPECIFIC_13:
-                                raise DriverOperationError(
-                                    f'{d.name}: homing error (statusword {sw:04X}h), method {method}')
-                            if not (sw & Statusword.OP_SPECIFIC_12 and sw & Statusword.TARGET_REACHED):
-                                return False
-                        return True
-                    self._wait(done, timeout=timeout or 2.0, what='homing attained')
-                finally:
-                    self._homing_start = False
-                self._wait_syncs(2)
-                for d, home in zip(self._drives, homes):
-                    if not self.plans[d.index].home_offset_on_drive:
-                        self._keep_home_offset(d, home)
-                    d.checked = None
-                    d.history.clear()
-                    d.target = self._actual_counts(d)
-                self._mode = int(OpMode.CYCLIC_SYNC_POSITION)
-                self._sdo_all(0x6060, 0, self._mode)
-                self.homed = True
-            except BaseException:
-                self._mode = int(OpMode.CYCLIC_SYNC_POSITION)
-                self._desired = State402.SWITCH_ON_DISABLED
-                self._set_state(MasterState.FAULT if self.supervisor.latched else MasterState.DISABLED)
-                raise
-            self._desired = State402.SWITCH_ON_DISABLED
-            self._wait(lambda: self._all_in(State402.SWITCH_ON_DISABLED), timeout=timeout,
-                       what='SWITCH ON DISABLED after homing')
-            self._set_state(MasterState.DISABLED)
-            log.info('homed (method %d): %s', method,
-                     ', '.join(f'{n} {p:.4f} {self.limits.unit}' for n, p in zip(self.names, self.feedback().position)))
+                def done() -> bool:
+                    for d in life.drives:
+                        sw = d.sample.statusword if d.sample else 0
+                        if sw & Statusword.OP_SPECIFIC_13:
+                            raise DriverOperationError(
+                                f'{d.name}: homing error (statusword {sw:04X}h), method {method}')
+                        if not (sw & Statusword.OP_SPECIFIC_12 and sw & Statusword.TARGET_REACHED):
+                            return False
+                    return True
+                life.wait(done, timeout=timeout or 2.0, what='homing attained')
+            finally:
+                life.homing_start = False
+            life.wait_syncs(2)
+            for d, home in zip(life.drives, homes):
+                if not self.plans[d.index].home_offset_on_drive:
+                    self._keep_home_offset(d, home)
+                d.checked = None
+                d.history.clear()
+                d.target = life.actual_counts(d)
+            life.mode = int(OpMode.CYCLIC_SYNC_POSITION)
+            self._sdo_all(0x6060, 0, life.mode)
+            life.homed = True
+        except BaseException:
+            life.mode = int(OpMode.CYCLIC_SYNC_POSITION)
+            life.desired = State402.SWITCH_ON_DISABLED
+            life.set_state(MasterState.FAULT if self._supervisor.latched else MasterState.DISABLED)
+            raise
+        life.desired = State402.SWITCH_ON_DISABLED
+        life.wait(lambda: life.all_in(State402.SWITCH_ON_DISABLED), timeout=timeout,
+                  what='SWITCH ON DISABLED after homing')
+        life.set_state(MasterState.DISABLED)
+        log.info('homed (method %d): %s', method,
+                 ', '.join(f'{n} {p:.4f} {life.limits.unit}' for n, p in zip(self.config.names, self._receiver.feedback().position)))
 
     def _keep_home_offset(self, d: _Drive, home_counts: int) -> None:
         """The drive homed to its own offset (no writable 607Ch): from now on the master adds
@@ -493,7 +531,7 @@ class BootMixin:
         d.recent.clear()
         d.history.clear()
         plan = self.plans[d.index]
-        lo, hi = self.limits.stroke_of(d.index)
+        lo, hi = self._life.limits.stroke_of(d.index)
         if plan.dictionary.writable(ObjectRef(0x607D, 1)) and plan.dictionary.writable(ObjectRef(0x607D, 2)) \
                 and lo > float('-inf') and hi < float('inf'):
             try:
@@ -519,7 +557,7 @@ class BootMixin:
             raise DriverOperationError(f'{d.name}: SDO {index:04X}h:{sub} = {value} failed: {exc}') from exc
 
     def _sdo_all(self, index: int, sub: int, value: int) -> None:
-        for d in self._drives:
+        for d in self._life.drives:
             self._sdo(d, index, sub, value)
 
 

@@ -5,20 +5,24 @@
 Notifier is the only receive thread) and runs one cyclic thread that produces SYNC
 (COB-ID 80h) at ``can.sync_rate_hz`` and the master heartbeat (700h + 127).
 
-The master is made of seams, one module each:
+The master is the API over parts, each an object with its own state, composed here:
 
-* :mod:`.state` — configuration, states and snapshots;
-* :mod:`.boot` — bus, NMT, SDO configuration, PDO mapping, homing;
-* :mod:`.sync` — :class:`~.sync.SyncClock`, a part with its own state: the SYNCs sent and
-  which one a drive's answer belongs to;
-* :mod:`.receive` — :class:`~.receive.Receiver`, a part with its own state: TPDO1 samples,
-  heartbeats, EMCY, error frames (canopen's Notifier thread), and
-  :class:`~.receive.BusTraffic`, the bus counters;
-* :mod:`.cycle` — the SYNC cycle: monitors, command, RPDO1 + RPDO2, SYNC;
-* :mod:`.execution` — the commanded motion: a planned trajectory sampled at every SYNC
-  (quintic Hermite, one time base for all axes, time scaling to slow down), or the
-  setpoint stream, path-synchronous;
-* :mod:`.monitors` — per-cycle monitors and the fault predicates.
+* :mod:`.lifecycle` — what the parts share: :class:`~.lifecycle.Lifecycle` (the master's
+  state, the nodes, the 402 state wanted, the flags the API sets for the cycle, the waits)
+  and :class:`~.lifecycle.Motion` (the executor, its lock, its events);
+* :mod:`.boot` — :class:`~.boot.Boot`: the plan, bus, NMT, SDO configuration, PDO mapping,
+  homing;
+* :mod:`.sync` — :class:`~.sync.SyncClock`: the SYNCs sent and which one a drive's answer
+  belongs to;
+* :mod:`.receive` — :class:`~.receive.Receiver`: TPDO1 samples, heartbeats, EMCY, error frames
+  (canopen's Notifier thread), and :class:`~.receive.BusTraffic`, the bus counters;
+* :mod:`.monitors` — :class:`~.monitors.Monitors`: the per-cycle protective functions
+  (:mod:`brace_control.safety`) and the fault predicates;
+* :mod:`.stream` — :class:`~.stream.SetpointStream`: the teleoperation stream;
+* :mod:`.cycle` — :class:`~.cycle.Cycle`: the SYNC thread: monitors, command, RPDOs, SYNC;
+* :mod:`brace_control.control.execution` — the commanded motion: a planned trajectory sampled
+  at every SYNC (quintic Hermite, one time base for all axes, time scaling to slow down), or
+  the setpoint stream, path-synchronous.
 
 Motion (ARCHITECTURE.md, "Data flow"): :meth:`BraceMaster.execute` takes a whole
 :class:`~.execution.ActuatorTrajectory` with its start time (ros2_control's
@@ -57,21 +61,21 @@ import can
 import canopen
 import numpy as np
 
-from .boot import BootMixin
-from .cia402 import NmtState, OpMode, State402, Statusword, describe_statusword, emcy_description
-from .cycle import CycleMixin
-from .errors import (DriverInitializationError, DriverOperationError, DriverTimeoutError,
-                     FaultLatchedError)
 from ..control.execution import ActuatorTrajectory, ExecutionEvent, ExecutionState, PathExecutor
-from .frame import Frame
-from .monitors import MonitorMixin
-from .receive import BusTraffic, Receiver
-from .monitors import NO_FEEDFORWARD_LAG_S, RELIEVABLE, platform_tiers
+from ..safety import ForcePrediction, WrenchTiers
+from .boot import Boot
+from .cia402 import NmtState, State402, emcy_description
+from .cycle import Cycle
+from .errors import DriverInitializationError, DriverOperationError
+from .lifecycle import Lifecycle, Motion
+from .monitors import RELIEVABLE, Monitors
+from .pdo import SdoWrite
 from .plan import BootPlan, ModulePlan
-from ..safety import ForcePrediction
+from .receive import BusTraffic, Receiver
 from .state import (BusStatus, DriveStatus, Feedback, MasterConfig, MasterState, MasterStatus,
-                    Relief, TakeUp, _Drive, _Module, _Node, _Setpoint, sender_rate)
-from .supervision import Fault, FaultKind, Supervisor
+                    Relief, TakeUp, _Node)
+from .stream import SetpointStream, checked_velocities
+from .supervision import Fault, FaultKind, Limits, Supervisor
 from .sync import SyncClock
 from .timing import PeriodStats
 
@@ -79,8 +83,6 @@ __all__ = ['BraceMaster', 'MasterConfig', 'MasterState', 'DriveStatus', 'BusStat
            'MasterStatus', 'Feedback']
 
 log = logging.getLogger(__name__)
-
-_SYNC_ID = 0x80
 #: the longest halt / disable waits for the motion to brake along its path (s)
 STOP_WAIT_S = 2.0
 #: s every load cell must read below the release force before a relief counts as done
@@ -90,7 +92,7 @@ RELIEF_CONFIRM_S = 0.05
 TAKE_UP_LAG_SYNCS = 3
 
 
-class BraceMaster(BootMixin, MonitorMixin, CycleMixin):
+class BraceMaster:
     """CiA 402 master of one device's drives (see the module docstring).
 
     :param config: :class:`MasterConfig` (``MasterConfig.from_device_config(cfg)``).
@@ -107,98 +109,36 @@ class BraceMaster(BootMixin, MonitorMixin, CycleMixin):
     def __init__(self, config: MasterConfig, *, bus: can.BusABC | None = None) -> None:
         self.config = config
         self.scaling = config.scaling
-        self.limits = config.limits
-        #: the commanded motion: trajectories and the stream, one time base for all axes
-        self.executor = PathExecutor(len(config.node_ids), v_max=self.limits.v_max,
-                                     a_max=self.limits.a_max, period=config.period,
-                                     splice_tolerance=self.limits.path_tolerance)
-        self._exec_lock = threading.Lock()     # executor: SYNC thread vs API threads
-        self._events: list[ExecutionEvent] = []
-        self._commanding = False               # last cycle's targets came from the executor
-        self._fault_to_handle = False
-        self._fault_brake_until = 0.0
-        # (drive index, force) to brake for, or the reason of a soft limit the node found
-        self._soft_stop: tuple[int, float] | str | None = None
-        self._relief: Relief | None = None
-        self._take_up: TakeUp | None = None
-        #: a relief moved the actuators since the last take-up: pull-only legs may hang slack
-        self.relieved = False
-        #: ``f(actuator index, force) -> str``: what the soft-limit stop adds to its reason
-        #: (the node: the wrench capacity at the estimated pose); ``None``: nothing
-        self.soft_limit_context: Callable[[int, float], str] | None = None
-        #: docs/safety.md §8, §14, evaluated in the SYNC cycle: the platform wrench's hard and
-        #: soft tiers (``None``: no mechanism model or no ``safety.max_wrench``) and the
-        #: prediction on each actuator's load cell (:mod:`brace_control.safety`)
-        self.platform_tiers = platform_tiers(config)
-        self.force_prediction = ForcePrediction(config.names, self.limits.force_limit,
-                                                self.limits.force_unit)
-        self.supervisor = Supervisor(on_fault=self._on_fault)
-        self.stats = PeriodStats(config.period)
-        self._own_bus = bus is None
-        self._bus: can.BusABC | None = bus
-        self.network: canopen.Network | None = None
-        self._drives: list[_Drive] = []
-        #: each drive's boot as planned against its dictionary (:meth:`plan`, at :meth:`open`)
-        self.plans: list[BootPlan] = []
-        self.module_plan: ModulePlan | None = None
-        self._module: _Module | None = None
-        #: what the plans skipped and why, one line each (logged at configure)
-        self.boot_report: list[str] = []
-        #: 6060h the RPDOs carry where a drive maps it (homing: 6, else 8)
-        self._mode = int(OpMode.CYCLIC_SYNC_POSITION)
-        #: SYNCs of position-loop lag allowed a drive without velocity feed-forward
-        self._lag_syncs = math.ceil(NO_FEEDFORWARD_LAG_S / config.period)
-        self._api_lock = threading.RLock()
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        self._frame_log: can.Listener | None = None
-        self.state = MasterState.CLOSED
-        #: bumped on every change of :attr:`state` (a node publishes the state on change)
-        self.state_changes = 0
-        # cycle inputs (written by API threads, read by the SYNC thread)
-        self._pdo_running = False             # SYNC + RPDOs (else heartbeat only)
-        self._supervising = False             # monitors armed (after boot)
-        self._closing = False                 # shutdown: disable whatever the latch says
-        self._desired = State402.SWITCH_ON_DISABLED
-        self._reset_pulse = False
-        self._homing_start = False
-        self._tracking = False                 # targets follow setpoints
-        self._setpoint: _Setpoint | None = None
-        #: the last setpoint received (the sender's rate is taken from it), taken or not
-        self._received_sp: _Setpoint | None = None
-        self._setpoint_seq = 0
-        self._last_sp_seq = 0
-        self._last_sp_time = -math.inf
-        self._last_sp_stamp: float | None = None
-        self._last_sp_position: np.ndarray | None = None
-        self._was_fresh = False
-        self._stamp_burst = False
-        self.stale_setpoint_holds = 0
-        self.accepted_setpoints = 0
-        self.rejected_setpoints = 0
-        self.homed = False
-        self._recover_time = -math.inf
+        #: the latched protective stops; the first reaction to one is the lifecycle's
+        self.supervisor = Supervisor(on_fault=lambda fault: self.life.on_fault(fault))
         #: the SYNCs sent (the cycle stamps them; a TPDO is attributed to the SYNC it
         #: answered by its bus timestamp, not by when our thread got to it)
         self.clock = SyncClock()
+        #: the state the parts share: the master's state, the nodes, the cycle's inputs
+        self.life = Lifecycle(config, self.supervisor, self.clock)
+        #: the commanded motion: trajectories and the stream, one time base for all axes
+        self.motion = Motion(PathExecutor(len(config.node_ids), v_max=config.limits.v_max,
+                                          a_max=config.limits.a_max, period=config.period,
+                                          splice_tolerance=config.limits.path_tolerance))
         #: frames and bits both ways, the bus load, the controller's error state
         self.traffic = BusTraffic(config.bitrate)
         #: the receive side: samples, heartbeats, EMCY, error frames (canopen's Notifier thread)
         self.receiver = Receiver(config, self.clock, self.traffic, self.supervisor,
-                                 supervising=lambda: self._supervising, rebooted=self._drive_rebooted,
-                                 nmt_not_operational=self._nmt_not_operational,
-                                 emcy_present=self._emcy_present)
-        self._last_wake = 0.0
-        self._loads_stamp: int | None = None     # the SYNC the load tiers last judged
-        self._grace_until = 0.0               # monotonic: after a host stall of this process
-        self._hb_period = config.master_heartbeat_ms * 1e-3
-        self._next_hb = 0.0
-        self._heartbeat_on = False             # produced once the boot found no other master
-        self._hb_msg = Frame(arbitration_id=0x700 + config.master_node_id,
-                                   data=bytes([NmtState.OPERATIONAL]), is_extended_id=False)
-        self._sync_msg = Frame(arbitration_id=_SYNC_ID, data=b'', is_extended_id=False)
-        self.send_failures = 0
-        self._last_send_failed = False
+                                 supervising=lambda: self.life.supervising,
+                                 rebooted=self._drive_rebooted,
+                                 nmt_not_operational=lambda d: self.monitors.nmt_not_operational(d),
+                                 emcy_present=lambda d: self.monitors.emcy_present(d))
+        #: the per-SYNC protective functions (docs/safety.md §2, §4, §8, §9, §11, §14)
+        self.monitors = Monitors(self.life, self.motion, self.receiver, self.clock,
+                                 distance_to_go=self.distance_to_go, soft_stop=self.soft_stop)
+        #: the teleoperation stream (docs/safety.md §1, §7)
+        self.stream = SetpointStream(self.life, self.monitors.step_condition)
+        #: the SYNC thread
+        self.cycle = Cycle(self.life, self.motion, self.stream, self.monitors, self.clock,
+                           self.traffic)
+        #: plan, bus, NMT, SDO configuration, homing
+        self.setup = Boot(self.life, self.receiver, self.traffic, self.cycle, self.monitors, bus=bus)
+        self._api_lock = threading.RLock()
 
     # ------------------------------------------------------------------ construction
 
@@ -215,7 +155,107 @@ class BraceMaster(BootMixin, MonitorMixin, CycleMixin):
     @property
     def bus(self) -> can.BusABC | None:
         """The python-can bus (``None`` when closed)."""
-        return self._bus
+        return self.setup.bus
+
+    @property
+    def network(self) -> canopen.Network | None:
+        """The canopen Network on the bus (``None`` when closed)."""
+        return self.setup.network
+
+    @property
+    def state(self) -> MasterState:
+        return self.life.state
+
+    @property
+    def state_changes(self) -> int:
+        """Bumped on every change of :attr:`state` (a node publishes the state on change)."""
+        return self.life.state_changes
+
+    @property
+    def limits(self) -> Limits:
+        """The monitors' thresholds (the boot narrows the saturation to the load-cell inputs)."""
+        return self.life.limits
+
+    @property
+    def homed(self) -> bool:
+        return self.life.homed
+
+    @property
+    def relieved(self) -> bool:
+        """A relief moved the actuators since the last take-up: pull-only legs may hang slack."""
+        return self.life.relieved
+
+    @property
+    def executor(self) -> PathExecutor:
+        """The commanded motion (:class:`~brace_control.control.execution.PathExecutor`)."""
+        return self.motion.executor
+
+    @property
+    def plans(self) -> list[BootPlan]:
+        """Each drive's boot as planned against its dictionary (at :meth:`open`)."""
+        return self.setup.plans
+
+    @property
+    def module_plan(self) -> ModulePlan | None:
+        return self.setup.module_plan
+
+    @property
+    def boot_report(self) -> list[str]:
+        """What the plans skipped and why, one line each (logged at configure)."""
+        return self.setup.boot_report
+
+    @property
+    def stats(self) -> PeriodStats:
+        """The SYNC period's timing."""
+        return self.cycle.stats
+
+    @property
+    def platform_tiers(self) -> WrenchTiers | None:
+        """The platform wrench's tiers the cycle evaluates (docs/safety.md §8, §14)."""
+        return self.monitors.platform_tiers
+
+    @property
+    def force_prediction(self) -> ForcePrediction:
+        return self.monitors.force_prediction
+
+    @property
+    def soft_limit_context(self) -> Callable[[int, float], str] | None:
+        """``f(actuator index, force) -> str``: what the soft-limit stop adds to its reason
+        (the node: the wrench capacity at the estimated pose); ``None``: nothing."""
+        return self.cycle.soft_limit_context
+
+    @soft_limit_context.setter
+    def soft_limit_context(self, value: Callable[[int, float], str] | None) -> None:
+        self.cycle.soft_limit_context = value
+
+    @property
+    def send_failures(self) -> int:
+        return self.cycle.send_failures
+
+    # ------------------------------------------------------------------ boot (:class:`.boot.Boot`)
+
+    def plan(self) -> list[BootPlan]:
+        """:meth:`.boot.Boot.plan`: every drive's boot planned against its dictionary."""
+        return self.setup.plan()
+
+    def sdo_writes(self, index: int) -> list[SdoWrite]:
+        """The configuration of drive ``index`` (actuator order) as planned, in write order."""
+        return self.setup.sdo_writes(index)
+
+    def open(self) -> None:
+        """:meth:`.boot.Boot.open`: plan, open the bus, start the SYNC thread (heartbeat only)."""
+        with self._api_lock:
+            self.setup.open()
+
+    def boot(self, *, timeout: float | None = None) -> None:
+        """:meth:`.boot.Boot.boot`: every drive to NMT OPERATIONAL with the planned configuration."""
+        with self._api_lock:
+            self.setup.boot(timeout=timeout)
+
+    def home(self, *, timeout: float | None = None) -> None:
+        """:meth:`.boot.Boot.home`: home every drive (only with the drives disabled)."""
+        with self._api_lock:
+            self.setup.home(timeout=timeout)
 
     def __enter__(self) -> BraceMaster:
         return self
@@ -241,26 +281,7 @@ class BraceMaster(BootMixin, MonitorMixin, CycleMixin):
             nothing is sent.
         """
         arr = self._checked_positions(positions, 'target')
-        vel = None
-        if velocities is not None:
-            vel = np.asarray(velocities, dtype=float)
-            if vel.shape != arr.shape or not np.all(np.isfinite(vel)):
-                raise ValueError(f'expected {arr.size} finite velocities ({", ".join(self.names)}), '
-                                 f'got {np.asarray(velocities).tolist()}')
-        now = time.perf_counter()
-        stamp = None if stamp is None else float(stamp)
-        prev = self._received_sp
-        if vel is None and prev is not None and now - prev.time <= self.limits.command_timeout:
-            # the sender's rate from its own last two setpoints (stamps, else arrivals), not
-            # from the last one the cycle took: a cycle that takes only the newest of a few
-            # would see a repeat of the final position as still moving, and a stream that
-            # stops there would brake past it
-            interval = (stamp - prev.stamp if stamp is not None and prev.stamp is not None
-                        and stamp > prev.stamp else now - prev.time)
-            vel = sender_rate(arr, prev.position, interval, period=self.config.period,
-                              v_max=self.limits.v_max)
-        self._setpoint_seq += 1
-        self._setpoint = self._received_sp = _Setpoint(arr.copy(), now, self._setpoint_seq, stamp, vel)
+        self.stream.receive(arr, stamp, checked_velocities(velocities, arr, self.names))
 
     def execute(self, trajectory: ActuatorTrajectory, *, start: float, tag: int) -> str | None:
         """Run ``trajectory`` from ``start`` (perf_counter s: when the drives are to be at its
@@ -270,32 +291,63 @@ class BraceMaster(BootMixin, MonitorMixin, CycleMixin):
         :returns: ``None`` when accepted, else the reason it was rejected (nothing moves).
         """
         now = time.perf_counter()
-        with self._exec_lock:
-            if not self._tracking or self.state is not MasterState.ENABLED:
+        motion = self.motion
+        with motion.lock:
+            if not self.life.tracking or self.state is not MasterState.ENABLED:
                 reason = f'the drives are not enabled (master {self.state.value}' + (
                     f': {self.supervisor.summary()})' if self.supervisor.latched else ')')
-                self._events.append(ExecutionEvent(tag, 'rejected', reason, (), now))
+                motion.events.append(ExecutionEvent(tag, 'rejected', reason, (), now))
                 return reason
             lo = np.array([self.limits.stroke_of(i)[0] for i in range(len(self.names))])
             hi = np.array([self.limits.stroke_of(i)[1] for i in range(len(self.names))])
-            reason = self.executor.load(trajectory, start, tag, now=now, lo=lo, hi=hi)
-            self._events.extend(self.executor.events)
-            self.executor.events.clear()
+            reason = motion.executor.load(trajectory, start, tag, now=now, lo=lo, hi=hi)
+            motion.collect()
             return reason
 
     def stop_motion(self, reason: str, *, tag: int | None = None) -> None:
         """Decelerate the running motion to rest along its path (all axes together) and hold;
         ``tag``: only if that trajectory is running or pending (a cancel naming its goal)."""
-        with self._exec_lock:
-            self.executor.stop(reason, now=time.perf_counter(), tag=tag)
-            self._events.extend(self.executor.events)
-            self.executor.events.clear()
+        with self.motion.lock:
+            self.motion.executor.stop(reason, now=time.perf_counter(), tag=tag)
+            self.motion.collect()
 
     def execution_events(self) -> list[ExecutionEvent]:
         """What happened to each trajectory since the last call (oldest first)."""
-        with self._exec_lock:
-            events, self._events = self._events, []
-        return events
+        return self.motion.drain()
+
+    # -- the interaction mode's admittance, run in the cycle (docs/safety.md §19)
+
+    def start_interaction(self, source: object, tag: int) -> str | None:
+        """Run the admittance ``source`` in the cycle from the command at rest
+        (:meth:`~brace_control.control.execution.PathExecutor.begin_interaction`).
+
+        :returns: None when started, else why not (nothing moves).
+        """
+        now = time.perf_counter()
+        with self.motion.lock:
+            if not self.life.tracking or self.state is not MasterState.ENABLED:
+                return f'the drives are not enabled (master {self.state.value})'
+            reason = self.motion.executor.begin_interaction(source, tag, now=now)
+            self.motion.collect()
+            return reason
+
+    def stop_interaction(self, reason: str) -> None:
+        """Brake the interaction to rest along its direction, then hold (event 'stopped')."""
+        with self.motion.lock:
+            self.motion.executor.stop_interaction(reason, now=time.perf_counter())
+            self.motion.collect()
+
+    def set_interaction_goal(self, wrench: object) -> None:
+        """The wrench goal of the running interaction (pose axes).
+
+        :raises ValueError: no interaction runs; :raises GoalRejected: the controller's
+            checks (held axis, ``max_goal_wrench``, capacity at the current pose).
+        """
+        with self.motion.lock:
+            src = self.motion.executor.source
+            if src is None:
+                raise ValueError('no interaction is running')
+            src.controller.set_goal(wrench)
 
     @property
     def moving(self) -> bool:
@@ -338,7 +390,7 @@ class BraceMaster(BootMixin, MonitorMixin, CycleMixin):
     def last_pose(self) -> np.ndarray | None:
         """The newest platform pose the cycle's wrench tiers solved (``None``: no model,
         no ``safety.max_wrench``, or not solved yet)."""
-        tiers = self.platform_tiers
+        tiers = self.monitors.platform_tiers
         return None if tiers is None else tiers.platform.pose.copy()
 
     # ------------------------------------------------------------------ what was received
@@ -376,11 +428,11 @@ class BraceMaster(BootMixin, MonitorMixin, CycleMixin):
 
     def _drive_rebooted(self) -> None:
         """A supervised drive sent a boot-up: its configuration and homing are gone."""
-        self.homed = False
+        self.life.homed = False
 
     def _checked_positions(self, positions: Sequence[float], what: str) -> np.ndarray:
         arr = np.asarray(positions, dtype=float)
-        n = len(self._drives) or len(self.config.node_ids)
+        n = len(self.life.drives) or len(self.config.node_ids)
         if arr.shape != (n,):
             raise ValueError(f'expected {n} {what} positions ({", ".join(self.names)}), got shape {arr.shape}')
         u = self.limits.unit
@@ -403,75 +455,71 @@ class BraceMaster(BootMixin, MonitorMixin, CycleMixin):
         :raises DriverOperationError: not booted, or not homed (call :meth:`home`).
         :raises DriverTimeoutError: a drive did not reach OPERATION ENABLED.
         """
+        life = self.life
         with self._api_lock:
-            self._require_ready()
-            if not self.homed and self.config.homing_method:
+            life.require_ready()
+            if not life.homed and self.config.homing_method:
                 raise DriverOperationError(
                     'not homed: park the brace at the home pose and call home() first '
                     '(incremental encoders read 0 at power-up)')
-            if self.state is MasterState.ENABLED and self._all_in(State402.OPERATION_ENABLED):
+            if life.state is MasterState.ENABLED and life.all_in(State402.OPERATION_ENABLED):
                 return
-            self._setpoint = self._received_sp = None
-            self._last_sp_stamp = None
-            self._last_sp_time = -math.inf
-            self._last_sp_position = None
-            self._was_fresh = False
-            self._desired = State402.OPERATION_ENABLED
-            self._wait(lambda: self._all_in(State402.OPERATION_ENABLED), timeout=timeout,
-                       what='OPERATION ENABLED')
-            self._wait_syncs(2)
-            with self._exec_lock:
+            self.stream.restart()
+            life.desired = State402.OPERATION_ENABLED
+            life.wait(lambda: life.all_in(State402.OPERATION_ENABLED), timeout=timeout,
+                      what='OPERATION ENABLED')
+            life.wait_syncs(2)
+            with self.motion.lock:
                 fb = self.feedback()
-                self.executor.anchor(fb.position, time.perf_counter() + self.config.period,
-                                     reason='drives enabled: command anchored at their position')
-                self._events.extend(self.executor.events)
-                self.executor.events.clear()
-                self._last_sp_seq = self._setpoint_seq
-                self._tracking = True
-            self._set_state(MasterState.ENABLED)
+                self.motion.executor.anchor(fb.position, time.perf_counter() + self.config.period,
+                                            reason='drives enabled: command anchored at their position')
+                self.motion.collect()
+                self.stream.skip_received()
+                life.tracking = True
+            life.set_state(MasterState.ENABLED)
 
     def disable(self, *, timeout: float | None = None) -> None:
         """All drives to SWITCH ON DISABLED (power stage off); allowed in any state. A
         motion in progress is braked along its path first."""
+        life = self.life
         with self._api_lock:
-            self._require_open()
+            life.require_open()
             self._brake_and_release('disable requested')
-            self._desired = State402.SWITCH_ON_DISABLED
+            life.desired = State402.SWITCH_ON_DISABLED
             if self.supervisor.latched:
                 return          # the protective stop already holds; recover() disables
-            self._wait(lambda: all(d.state in (State402.SWITCH_ON_DISABLED, State402.FAULT)
-                                   for d in self._drives), timeout=timeout, what='SWITCH ON DISABLED')
-            self._set_state(MasterState.DISABLED)
+            life.wait(lambda: all(d.state in (State402.SWITCH_ON_DISABLED, State402.FAULT)
+                                  for d in life.drives), timeout=timeout, what='SWITCH ON DISABLED')
+            life.set_state(MasterState.DISABLED)
 
     def halt(self, *, timeout: float | None = None) -> None:
         """Brake the motion along its path, then quick stop (6040h = 0002h) and hold in
         QUICK STOP ACTIVE (605Ah = 6). Not a fault: :meth:`enable` resumes. Drives not
         enabled are disabled."""
+        life = self.life
         with self._api_lock:
-            self._require_open()
+            life.require_open()
             self._brake_and_release('halt requested')
-            self._desired = State402.QUICK_STOP_ACTIVE
+            life.desired = State402.QUICK_STOP_ACTIVE
             if self.supervisor.latched:
                 return
-            self._wait(lambda: all(d.state in (State402.QUICK_STOP_ACTIVE, State402.SWITCH_ON_DISABLED)
-                                   for d in self._drives), timeout=timeout, what='QUICK STOP ACTIVE')
-            self._set_state(MasterState.HALTED)
+            life.wait(lambda: all(d.state in (State402.QUICK_STOP_ACTIVE, State402.SWITCH_ON_DISABLED)
+                                  for d in life.drives), timeout=timeout, what='QUICK STOP ACTIVE')
+            life.set_state(MasterState.HALTED)
 
     def _brake_and_release(self, reason: str) -> None:
         """Stop taking commands: brake a running motion along its path (bounded wait), then
         drop it (reported stopped with ``reason``)."""
-        if self._tracking and not self.supervisor.latched:
-            with self._exec_lock:
-                self._setpoint = self._received_sp = None
-                self.executor.stop(reason, now=time.perf_counter())
+        life, motion = self.life, self.motion
+        if life.tracking and not self.supervisor.latched:
+            with motion.lock:
+                self.stream.drop()
+                motion.executor.stop(reason, now=time.perf_counter())
             end = time.monotonic() + STOP_WAIT_S
-            while self.executor.moving and time.monotonic() < end and not self.supervisor.latched:
+            while motion.executor.moving and time.monotonic() < end and not self.supervisor.latched:
                 time.sleep(self.config.period)
-        self._tracking = False
-        with self._exec_lock:
-            self.executor.release(reason)
-            self._events.extend(self.executor.events)
-            self.executor.events.clear()
+        life.tracking = False
+        motion.release(reason)
 
     def relieve(self, *, speed_share: float = 0.1, max_travel: float | None = None,
                 timeout: float = 20.0) -> str:
@@ -493,8 +541,9 @@ class BraceMaster(BootMixin, MonitorMixin, CycleMixin):
             drive or communication fault: the message names it), or the relief stopped
             before the forces were below the release force (why, and the forces).
         """
+        life = self.life
         with self._api_lock:
-            self._require_open()
+            life.require_open()
             if not self.supervisor.latched:
                 raise DriverOperationError('nothing to relieve: no protective stop is latched')
             others = [f for f in self.supervisor.faults if f.kind not in RELIEVABLE]
@@ -507,14 +556,14 @@ class BraceMaster(BootMixin, MonitorMixin, CycleMixin):
             if np.all(np.abs(fb.force) < release):
                 return (f'nothing to relieve: every force is below safety.release_force = '
                         f'{release:g} N ({np.round(fb.force, 1).tolist()} N); call recover')
-            if any(d.state in (State402.FAULT, State402.FAULT_REACTION_ACTIVE) for d in self._drives):
-                self._reset_pulse = True               # a drive's own fault: reset it first
+            if any(d.state in (State402.FAULT, State402.FAULT_REACTION_ACTIVE) for d in life.drives):
+                life.reset_pulse = True                # a drive's own fault: reset it first
                 try:
-                    self._wait(lambda: not any(d.state in (State402.FAULT, State402.FAULT_REACTION_ACTIVE)
-                                               for d in self._drives),
-                               timeout=0.5, what='drive fault reset', raise_=False)
+                    life.wait(lambda: not any(d.state in (State402.FAULT, State402.FAULT_REACTION_ACTIVE)
+                                              for d in life.drives),
+                              timeout=0.5, what='drive fault reset', raise_=False)
                 finally:
-                    self._reset_pulse = False
+                    life.reset_pulse = False
             ranges, max_travel = self._slow_move_ranges(max_travel)
             relief = Relief(release_force=release, speed=speed_share * self.limits.v_max,
                             max_travel=max_travel, deadline=time.perf_counter() + timeout,
@@ -523,28 +572,29 @@ class BraceMaster(BootMixin, MonitorMixin, CycleMixin):
                             names=self.names,
                             confirm=math.ceil(RELIEF_CONFIRM_S / self.config.period),
                             unit=self.limits.unit)
-            with self._exec_lock:
-                self.executor.anchor(fb.position, time.perf_counter() + self.config.period,
-                                     reason='relief: command anchored at the drives')
-                self.executor.events.clear()
-                self._relief = relief
-            self._set_state(MasterState.RELIEVING)
-            self._desired = State402.OPERATION_ENABLED
+            ex = self.motion.executor
+            with self.motion.lock:
+                ex.anchor(fb.position, time.perf_counter() + self.config.period,
+                          reason='relief: command anchored at the drives')
+                ex.events.clear()
+                life.relief = relief
+            life.set_state(MasterState.RELIEVING)
+            life.desired = State402.OPERATION_ENABLED
             log.warning('relief: backing off from forces %s N', np.round(fb.force, 1).tolist())
             try:
                 relief.finished.wait(timeout + 2.0)
             finally:
-                self._relief = None
-                self._desired = State402.QUICK_STOP_ACTIVE
-                with self._exec_lock:
-                    self.executor.release('relief ended')
-                    self.executor.events.clear()
-                self._wait(lambda: all(d.state in (State402.QUICK_STOP_ACTIVE, State402.SWITCH_ON_DISABLED,
-                                                   State402.FAULT) for d in self._drives),
-                           timeout=1.0, what='QUICK STOP ACTIVE after the relief', raise_=False)
-                self._set_state(MasterState.FAULT if self.supervisor.latched else MasterState.DISABLED)
+                life.relief = None
+                life.desired = State402.QUICK_STOP_ACTIVE
+                with self.motion.lock:
+                    ex.release('relief ended')
+                    ex.events.clear()
+                life.wait(lambda: all(d.state in (State402.QUICK_STOP_ACTIVE, State402.SWITCH_ON_DISABLED,
+                                                  State402.FAULT) for d in life.drives),
+                          timeout=1.0, what='QUICK STOP ACTIVE after the relief', raise_=False)
+                life.set_state(MasterState.FAULT if self.supervisor.latched else MasterState.DISABLED)
             after = self.feedback().force
-            self.relieved = self.relieved or relief.travel > 0.0
+            life.relieved = life.relieved or relief.travel > 0.0
             if relief.outcome:
                 raise DriverOperationError(f'relief stopped: {relief.outcome}')
             if relief.outcome is None:
@@ -565,15 +615,15 @@ class BraceMaster(BootMixin, MonitorMixin, CycleMixin):
     @property
     def taking_up(self) -> bool:
         """A :meth:`take_up` is under way (enabled, but not yet following goals)."""
-        return self._take_up is not None
+        return self.life.take_up is not None
 
     def distance_to_go(self, stream_horizon: float = 0.25) -> float | None:
         """:meth:`~.execution.PathExecutor.distance_to_go` of the command (m or rad), ``None``
         when no motion a soft limit may stop runs."""
         if self.state is not MasterState.ENABLED:
             return None
-        with self._exec_lock:
-            return self.executor.distance_to_go(stream_horizon)
+        with self.motion.lock:
+            return self.motion.executor.distance_to_go(stream_horizon)
 
     def soft_stop(self, reason: str) -> bool:
         """A soft limit found beside the per-drive monitors (the platform wrench's or a load
@@ -581,9 +631,9 @@ class BraceMaster(BootMixin, MonitorMixin, CycleMixin):
         setpoint stream brakes along its path at the next SYNC
         and holds, reported stopped with ``reason``; nothing latches. ``False`` (nothing
         done) when no such motion runs, it already brakes, or a soft stop is pending."""
-        if self.distance_to_go() is None or self._soft_stop is not None:
+        if self.distance_to_go() is None or self.life.soft_stop is not None:
             return False
-        self._soft_stop = str(reason)
+        self.life.soft_stop = str(reason)
         return True
 
     def take_up(self, *, below: float, speed_share: float = 0.1, max_travel: float | None = None,
@@ -605,12 +655,13 @@ class BraceMaster(BootMixin, MonitorMixin, CycleMixin):
             (stroke end, ``max_travel`` -- half the shortest range by default --, time out, a
             protective stop): why, and the tensions.
         """
+        life = self.life
         with self._api_lock:
-            self._require_open()
+            life.require_open()
             if self.state is not MasterState.ENABLED or self.supervisor.latched:
                 raise DriverOperationError(f'take-up needs the drives enabled (now {self.state.value})')
-            with self._exec_lock:
-                if self.executor.moving:
+            with self.motion.lock:
+                if self.motion.executor.moving:
                     raise DriverOperationError('take-up starts from rest: a motion is running')
             fb = self.feedback()
             ranges, max_travel = self._slow_move_ranges(max_travel)
@@ -623,22 +674,22 @@ class BraceMaster(BootMixin, MonitorMixin, CycleMixin):
                           lo=np.array([r[0] for r in ranges]), names=self.names,
                           confirm=math.ceil(RELIEF_CONFIRM_S / self.config.period), unit=self.limits.unit)
             if not np.any(take.slack(fb.force)):
-                self.relieved = False
+                life.relieved = False
                 return f'nothing to take up: every leg holds {below:g} N or more'
             log.warning('take-up: tensions %s N', np.round(-fb.force, 1).tolist())
-            self._take_up = take
+            life.take_up = take
             try:
                 take.finished.wait(timeout + 2.0)
             finally:
-                self._take_up = None
-                self._wait(lambda: not self.executor.moving, timeout=1.0, what='rest after the take-up',
-                           raise_=False)
+                life.take_up = None
+                life.wait(lambda: not self.motion.executor.moving, timeout=1.0,
+                          what='rest after the take-up', raise_=False)
             after = self.feedback().force
             if take.outcome is None:
                 take.outcome = f'time out with tensions {np.round(-after, 1).tolist()} N'
             if take.outcome:
                 raise DriverOperationError(f'take-up stopped: {take.outcome}')
-            self.relieved = False
+            life.relieved = False
             return (f'slack taken up: tensions {np.round(-take.forces_before, 1).tolist()} N -> '
                     f'{np.round(-after, 1).tolist()} N, cables shortened up to '
                     f'{np.max(take.travel) * 1e3:.2f} {take.milli}')
@@ -654,30 +705,28 @@ class BraceMaster(BootMixin, MonitorMixin, CycleMixin):
         :returns: the faults whose cause is still present (empty list: recovered).
         :raises DriverOperationError: nothing is latched (nothing was changed).
         """
+        life = self.life
         with self._api_lock:
-            self._require_open()
+            life.require_open()
             if not self.supervisor.latched and not any(
-                    d.state in (State402.FAULT, State402.FAULT_REACTION_ACTIVE) for d in self._drives):
+                    d.state in (State402.FAULT, State402.FAULT_REACTION_ACTIVE) for d in life.drives):
                 raise DriverOperationError(
                     f'nothing to recover: no protective stop is latched and no drive is in FAULT '
                     f'(master {self.state.value}); nothing was changed')
-            self._tracking = False
-            self._setpoint = self._received_sp = None
-            self._fault_brake_until = 0.0
-            with self._exec_lock:
-                self.executor.release('recover: commands discarded')
-                self._events.extend(self.executor.events)
-                self.executor.events.clear()
-            self._recover_time = time.monotonic()
+            life.tracking = False
+            self.stream.drop()
+            self.cycle.forget_fault_stop()
+            self.motion.release('recover: commands discarded')
+            life.recover_time = time.monotonic()
             restarted = []
-            for d in self._nodes:
+            for d in life.nodes:
                 if d.nmt is not None and d.nmt != NmtState.OPERATIONAL and \
-                        not self._heartbeat_missing(d)():
+                        not self.monitors.heartbeat_missing(d)():
                     try:
-                        if d is self._module:
-                            self._configure_module(d)
+                        if d is life.module:
+                            self.setup.configure_module(d)
                         else:
-                            self._configure(d)
+                            self.setup.configure(d)
                             d.checked = None
                             d.history.clear()
                         d.node.nmt.send_command(0x01)
@@ -686,25 +735,25 @@ class BraceMaster(BootMixin, MonitorMixin, CycleMixin):
                         log.error('recover: %s', exc)
             if restarted:
                 start = self.receiver.tpdo_total
-                self._wait(lambda: all(d.nmt == NmtState.OPERATIONAL and (d.rx_total > start or d is self._module)
-                                       for d in restarted),
-                           timeout=max(0.5, 4 * self.config.drive_heartbeat_ms * 1e-3),
-                           what='restarted drives OPERATIONAL', raise_=False)
-            self._desired = State402.SWITCH_ON_DISABLED
-            self._reset_pulse = True
+                life.wait(lambda: all(d.nmt == NmtState.OPERATIONAL and (d.rx_total > start or d is life.module)
+                                      for d in restarted),
+                          timeout=max(0.5, 4 * self.config.drive_heartbeat_ms * 1e-3),
+                          what='restarted drives OPERATIONAL', raise_=False)
+            life.desired = State402.SWITCH_ON_DISABLED
+            life.reset_pulse = True
             try:
-                self._wait(lambda: self._all_in(State402.SWITCH_ON_DISABLED),
-                           timeout=min(0.5, timeout or 0.5), what='SWITCH ON DISABLED', raise_=False)
+                life.wait(lambda: life.all_in(State402.SWITCH_ON_DISABLED),
+                          timeout=min(0.5, timeout or 0.5), what='SWITCH ON DISABLED', raise_=False)
                 # one more monitor pass on fresh samples before judging the causes
-                self._wait_syncs(2)
+                life.wait_syncs(2)
             finally:
-                self._reset_pulse = False
+                life.reset_pulse = False
             blocking = self.supervisor.try_clear()
             if blocking:
-                self._set_state(MasterState.FAULT)
+                life.set_state(MasterState.FAULT)
                 return blocking
             self.supervisor.unwarn('setpoint')
-            self._set_state(MasterState.DISABLED)
+            life.set_state(MasterState.DISABLED)
             return []
 
     def protective_stop(self, kind: FaultKind, cause: str, *, drive: str | None = None,
@@ -716,7 +765,7 @@ class BraceMaster(BootMixin, MonitorMixin, CycleMixin):
         """Snapshot for diagnostics."""
         now = time.monotonic()
         drives = []
-        for d in self._drives:
+        for d in self.life.drives:
             s = d.sample
             nmt = ('-' if d.nmt is None else
                    NmtState(d.nmt).name if d.nmt in NmtState._value2member_map_ else str(d.nmt))
@@ -733,106 +782,37 @@ class BraceMaster(BootMixin, MonitorMixin, CycleMixin):
         bus = BusStatus(frames, load, traffic.error_state, traffic.error_frames, self.send_failures)
         return MasterStatus(self.state, tuple(drives), bus, self.stats.report(),
                             self.supervisor.faults, tuple(w.message for w in self.supervisor.warnings),
-                            self.stale_setpoint_holds, self.homed, self.accepted_setpoints,
-                            self.rejected_setpoints, self.executor.state.value,
+                            self.stream.stale_holds, self.homed, self.stream.accepted,
+                            self.stream.rejected, self.executor.state.value,
                             self.executor.running_tag)
 
     def shutdown(self, *, timeout: float = 0.5) -> None:
         """Disable the drives, NMT pre-operational, stop SYNC, close the bus. Idempotent."""
+        life = self.life
         with self._api_lock:
-            if self.state is MasterState.CLOSED:
+            if life.state is MasterState.CLOSED:
                 return
-            if self._pdo_running and self._bus is not None:
-                self._tracking = False
-                self._supervising = False     # the drives will miss our heartbeat: expected
-                self._closing = True
-                self._desired = State402.SWITCH_ON_DISABLED
+            if life.pdo_running and self.bus is not None:
+                life.tracking = False
+                life.supervising = False      # the drives will miss our heartbeat: expected
+                life.closing = True
+                life.desired = State402.SWITCH_ON_DISABLED
                 try:
-                    self._wait(lambda: all(d.state in (State402.SWITCH_ON_DISABLED, State402.FAULT,
-                                                       State402.UNKNOWN) for d in self._drives),
-                               timeout=timeout, what='SWITCH ON DISABLED', raise_=False)
+                    life.wait(lambda: all(d.state in (State402.SWITCH_ON_DISABLED, State402.FAULT,
+                                                      State402.UNKNOWN) for d in life.drives),
+                              timeout=timeout, what='SWITCH ON DISABLED', raise_=False)
                 except Exception:  # noqa: BLE001 - closing anyway
                     pass
-            self._pdo_running = False
-            self._supervising = False
-            with self._exec_lock:
-                self.executor.release('the driver shut down')
-                self._events.extend(self.executor.events)
-                self.executor.events.clear()
-            if self.network is not None and self._drives and self._heartbeat_on:
+            life.pdo_running = False
+            life.supervising = False
+            self.motion.release('the driver shut down')
+            if self.network is not None and life.drives and self.cycle.heartbeat_on:
                 # (only drives this master took over: a master refused at boot leaves them be)
-                for d in self._nodes:
+                for d in life.nodes:
                     try:
                         d.node.nmt.send_command(0x80)     # pre-operational: PDOs off, SDO kept
                     except Exception:  # noqa: BLE001 - bus may be gone already
                         pass
-            self._stop.set()
-            if self._thread is not None and self._thread is not threading.current_thread():
-                self._thread.join(timeout=2.0)
-            self._thread = None
-            if self.network is not None:
-                if self.network.notifier is not None:
-                    self.network.notifier.stop(1.0)
-                    self.network.notifier = None
-                self.network = None
-            self._frame_log = None            # the Notifier stopped (closed) it
-            if self._bus is not None and self._own_bus:
-                self._bus.shutdown()
-            self._bus = None
-            self._set_state(MasterState.CLOSED)
-
-    # ------------------------------------------------------------------ helpers
-
-    def _set_state(self, state: MasterState) -> None:
-        if state is not self.state:
-            self.state = state
-            self.state_changes += 1
-
-    def _require_open(self) -> None:
-        if self.state in (MasterState.CLOSED, MasterState.OPEN, MasterState.BOOTING):
-            raise DriverOperationError(f'master is {self.state.value}: boot() first')
-
-    def _require_ready(self) -> None:
-        self._require_open()
-        if self.supervisor.latched:
-            raise FaultLatchedError(f'protective stop latched: {self.supervisor.summary()}; '
-                                    'call recover() once the cause is gone')
-
-    def _all_in(self, state: State402) -> bool:
-        return all(d.state is state for d in self._drives)
-
-    def _actual_counts(self, d: _Drive) -> int:
-        return self.scaling.to_counts(d.sample.position) if d.sample is not None else d.target
-
-    def _wait_syncs(self, n: int, timeout: float = 1.0) -> None:
-        clock = self.clock
-        target = clock.index + n
-        end = time.monotonic() + timeout
-        while clock.index < target and time.monotonic() < end:
-            time.sleep(self.config.period / 2)
-        time.sleep(self.config.period)       # the answer to that SYNC
-
-    def _wait(self, cond: Callable[[], bool], *, timeout: float | None, what: str,
-              raise_: bool = True) -> bool:
-        """Poll ``cond`` each half period; raise on a latched fault or the time limit."""
-        limit = self.config.transition_timeout if timeout is None else timeout
-        end = time.monotonic() + limit
-        while True:
-            if cond():
-                return True
-            if raise_ and self.supervisor.latched:
-                raise FaultLatchedError(f'waiting for {what}: protective stop: {self.supervisor.summary()}')
-            if time.monotonic() > end:
-                if not raise_:
-                    return False
-                states = ', '.join(f'{d.name}: {describe_statusword(d.sample.statusword) if d.sample else "no TPDO"}'
-                                   f' (NMT {d.nmt})' for d in self._drives)
-                local = [d.name for d in self._drives
-                         if d.sample is not None and not d.sample.statusword & Statusword.REMOTE]
-                hint = (f'; statusword bit 9 (remote) is clear on {", ".join(local)}: a drive under '
-                        'local control (its panel, its setup tool) does not take the controlword '
-                        'from the bus' if local else '')
-                raise DriverTimeoutError(f'{what} not reached within {limit:g} s ({states}){hint}')
-            time.sleep(self.config.period / 2)
-
-
+            self.cycle.stop()
+            self.setup.close()
+            life.set_state(MasterState.CLOSED)

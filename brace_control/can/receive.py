@@ -18,7 +18,6 @@ import math
 import struct
 import time
 from collections.abc import Callable
-from typing import Any
 
 import can
 import numpy as np

@@ -2,8 +2,9 @@
 
 :class:`MasterConfig` (read from the device YAML), the master's :class:`MasterState`, the
 snapshots it reports (:class:`DriveStatus`, :class:`BusStatus`, :class:`MasterStatus`,
-:class:`Feedback`) and its per-drive bookkeeping (``_Drive``), shared by the modules the
-master is made of (:mod:`.boot`, :mod:`.receive`, :mod:`.monitors`, :mod:`.cycle`).
+:class:`Feedback`) and its per-drive bookkeeping (``_Drive``), shared by the parts the
+master is made of (:mod:`.lifecycle`, :mod:`.boot`, :mod:`.receive`, :mod:`.monitors`,
+:mod:`.cycle`, :mod:`.stream`).
 """
 from __future__ import annotations
 
@@ -354,6 +355,8 @@ class _Drive(_Node):
     count_ratio: float = 1.0               # this drive's counts per the master's counts
     load_gain: float = 1.0                 # actuator.load_cell_gain
     load_offset: float = 0.0               # actuator.load_cell_offset (N or N·m)
+    #: its RPDOs carry the velocity feed-forward 60B1h (else it lags by its position loop)
+    feedforward: bool = True
 
     def to_wire(self, counts: float) -> int:
         """The master's counts (offset included) as this drive counts them."""
