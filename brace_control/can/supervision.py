@@ -8,7 +8,10 @@ Warnings (error-passive bus, stale setpoints) are reported, never latched.
 
 Pure logic, no bus: :class:`Supervisor` latches, :class:`Limits` holds the thresholds
 from the device YAML, :func:`check_sample` / :func:`check_step` are the per-cycle
-monitors, :func:`decode_error_frame` reads SocketCAN-style error frames.
+monitors, :func:`decode_error_frame` reads SocketCAN-style error frames. The monitors'
+rules are :mod:`brace_control.safety`'s (:mod:`~brace_control.safety.stroke`,
+:mod:`~brace_control.safety.force`, :mod:`~brace_control.safety.tracking`); here they are
+given the thresholds of :class:`Limits` and their verdicts become fault kinds.
 
 Fault matrix (reaction: quick stop of every drive on the next SYNC cycle, targets held;
 bounds at 500 Hz, tested in test/test_can_master.py with 50 ms of scheduling slack):
@@ -51,6 +54,14 @@ from typing import Any
 import can
 
 from ..config import ConfigError, as_device_config
+from ..safety.force import force_limit as _force_limit
+from ..safety.force import saturation as _saturation
+from ..safety.stroke import max_step as _max_step
+from ..safety.stroke import step_limit as _step_limit
+from ..safety.stroke import stroke as _stroke
+from ..safety.tracking import following_error as _following_error
+from ..safety.tracking import position_jump as _position_jump
+from ..safety.verdict import OK as _OK
 from ..schema import release_force, soft_force_limit
 from .units import AxisScaling
 
@@ -296,12 +307,12 @@ class Limits:
         """Largest allowed |new − current| over ``dt``: ``v·dt + margin`` (docs/safety.md §7).
 
         ``v`` is ``v_max``, ramped down near the stroke end being approached
-        (``v ≤ √(2·a_max·d)``, ``d`` the distance from ``new`` to that end; docs/safety.md §5).
+        (``v ≤ √(2·a_max·d)``, ``d`` the distance from ``new`` to that end; docs/safety.md §5):
+        :func:`brace_control.safety.stroke.max_step` with these limits.
         """
         lo, hi = self.stroke_of(index)
-        d = (hi - new) if new > current else (new - lo)
-        v = min(self.v_max, math.sqrt(2.0 * self.a_max * max(d, 0.0)))
-        return v * dt + self.step_margin
+        return _max_step(current, new, dt, lo=lo, hi=hi, v_max=self.v_max, a_max=self.a_max,
+                         margin=self.step_margin)
 
 
 @dataclass
@@ -321,18 +332,20 @@ def check_step(drive: str, current: float, new: float, dt: float, limits: Limits
     """Cause text if a new target violates the stroke or the per-command step limit, else None.
 
     ``index``: the actuator's index, for per-actuator ranges (:attr:`Limits.strokes`).
+
+    The rules are :mod:`brace_control.safety`'s: :func:`~brace_control.safety.stroke.stroke`
+    (docs/safety.md §5), then :func:`~brace_control.safety.stroke.step_limit` (§7, with the
+    ramp of §5); the reason of the first that is not *ok*.
     """
     lo, hi = limits.stroke_of(index)
     u = limits.unit
-    if not lo <= new <= hi:
-        what = 'stroke' if u == 'm' else 'joint range'
-        return f'target {new:.5f} {u} is outside the {what} {lo:.3f}–{hi:.3f} {u}'
-    allowed = limits.max_step(current, new, dt, index)
-    if abs(new - current) > allowed:
-        mu = 'mm' if u == 'm' else 'mrad'
-        return (f'target step {abs(new - current) * 1e3:.3f} {mu} in {dt * 1e3:.1f} ms exceeds '
-                f'{allowed * 1e3:.3f} {mu} (v_max·dt + margin)')
-    return None
+    verdict = _stroke(new, lo, hi, u)
+    if verdict is _OK:
+        verdict = _step_limit(current, new, dt, lo=lo, hi=hi, v_max=limits.v_max, a_max=limits.a_max,
+                              margin=limits.step_margin, unit=u)
+        if verdict is _OK:
+            return None
+    return verdict.reason
 
 
 def _actuator_limits(cfg: Mapping[str, Any], mechanism: Any = None
@@ -359,29 +372,32 @@ def check_sample(prev: Sample | None, cur: Sample, limits: Limits, *,
 
     ``commanded`` is the target the drive should track (``None``: not tracking, e.g.
     disabled or homing: no following-error or jump check).
+
+    The rules are :mod:`brace_control.safety`'s: :func:`~brace_control.safety.force.saturation`
+    (docs/safety.md §9), else :func:`~brace_control.safety.force.force_limit` (§8), then while
+    tracking :func:`~brace_control.safety.tracking.position_jump` (§9) and
+    :func:`~brace_control.safety.tracking.following_error` (§11); each verdict that is not
+    *ok* becomes ``(kind, reason)``, in that order.
     """
     out: list[tuple[FaultKind, str]] = []
-    if abs(cur.load_counts) >= limits.saturation_counts:
-        out.append((FaultKind.LOAD_CELL_SATURATED,
-                    f'load cell reads {cur.load_counts} counts ({cur.force:.1f} N), '
-                    f'saturation at ±{limits.saturation_counts}'))
-    elif abs(cur.force) > limits.force_limit:
-        out.append((FaultKind.FORCE_LIMIT,
-                    f'load-cell force {cur.force:.1f} N exceeds {limits.force_limit:.1f} N'))
+    verdict = _saturation(cur.load_counts, cur.force, limits.saturation_counts)
+    if verdict is not _OK:
+        out.append((FaultKind.LOAD_CELL_SATURATED, verdict.reason))
+    else:
+        verdict = _force_limit(cur.force, limits.force_limit)
+        if verdict is not _OK:
+            out.append((FaultKind.FORCE_LIMIT, verdict.reason))
     if commanded is not None:
         if prev is not None and cur.sync_index > prev.sync_index:
-            dt = (cur.sync_index - prev.sync_index) * limits.period
-            jump = abs(cur.position - prev.position)
-            bound = limits.jump_factor * limits.v_max * dt + limits.step_margin
-            if jump > bound:
-                out.append((FaultKind.POSITION_JUMP,
-                            f'position changed {jump * 1e3:.3f} mm in {dt * 1e3:.1f} ms '
-                            f'(physically at most {bound * 1e3:.3f} mm)'))
-        err = abs(commanded - cur.position)
-        if err > limits.path_tolerance:
-            out.append((FaultKind.FOLLOWING_ERROR,
-                        f'actual {cur.position:.5f} m is {err * 1e3:.2f} mm from the target '
-                        f'{commanded:.5f} m (path tolerance {limits.path_tolerance * 1e3:.2f} mm)'))
+            verdict = _position_jump(prev.position, cur.position,
+                                     (cur.sync_index - prev.sync_index) * limits.period,
+                                     v_max=limits.v_max, jump_factor=limits.jump_factor,
+                                     margin=limits.step_margin)
+            if verdict is not _OK:
+                out.append((FaultKind.POSITION_JUMP, verdict.reason))
+        verdict = _following_error(cur.position, commanded, limits.path_tolerance)
+        if verdict is not _OK:
+            out.append((FaultKind.FOLLOWING_ERROR, verdict.reason))
     return out
 
 

@@ -11,10 +11,21 @@ them in its SYNC cycle (:mod:`brace_control.can.monitors`); the nodes only repor
   soft tiers share (:class:`LoadPrediction`), also applied to each actuator's load cell
   (:class:`ForcePrediction`);
 - :mod:`.liveness`: heartbeats (§2), fresh feedback (§9) and an impossible measured speed (§8):
-  silence judged on what was received, not on when this process looked.
+  silence judged on what was received, not on when this process looked;
+- :mod:`.stroke`: a new target inside the stroke (:func:`stroke`, §5) and within the step
+  limit (:func:`step_limit`, §7), whose bound :func:`max_step` ramps down near the stroke
+  ends (§5);
+- :mod:`.force`: an actuator's load cell at its saturation (:func:`saturation`, §9) or above
+  the hard force limit (:func:`force_limit`, §8);
+- :mod:`.tracking`: a position jump no actuator can make (:func:`position_jump`, §9) and a
+  following error beyond the path tolerance (:func:`following_error`, §11).
 """
+from .force import force_limit, saturation
+from .stroke import max_step, step_limit, stroke
+from .tracking import following_error, position_jump
 from .verdict import OK, Action, Verdict
 from .wrench import ForcePrediction, LoadPrediction, PlatformWrench, WrenchTiers, wrench_axis
 
 __all__ = ['Action', 'Verdict', 'OK', 'PlatformWrench', 'LoadPrediction', 'WrenchTiers',
-           'ForcePrediction', 'wrench_axis']
+           'ForcePrediction', 'wrench_axis', 'max_step', 'stroke', 'step_limit', 'saturation',
+           'force_limit', 'position_jump', 'following_error']

@@ -1,0 +1,40 @@
+"""An actuator's load cell, sample by sample: a reading at its saturation (docs/safety.md §9)
+and a force above the hard limit (§8). Plain logic on numbers: the CAN master evaluates it
+in its SYNC cycle for each drive's newest sample
+(:func:`brace_control.can.supervision.check_sample`, run by :mod:`brace_control.can.monitors`).
+
+A saturated reading says nothing about the force, so the force limit is judged only on a
+reading below saturation (the caller checks :func:`saturation` first). The platform wrench
+and the soft tiers on the same load cells are in :mod:`.wrench` (§8, §14).
+
+The reasons name the force in N on a rotary joint too (its torque in N·m), as the master's
+reports always have.
+"""
+from __future__ import annotations
+
+from .verdict import OK, Action, Verdict
+
+__all__ = ['saturation', 'force_limit']
+
+
+def saturation(counts: float, force: float, saturation_counts: float) -> Verdict:
+    """docs/safety.md §9: a reading at or above ``saturation_counts`` from the load cell's
+    zero (``safety.saturation_fraction`` of its full scale) is a protective stop.
+
+    :param counts: the raw reading, counts from its zero.
+    :param force: the same reading in N (only named in the reason).
+    :param saturation_counts: ``|counts|`` at or above which the cell is saturated."""
+    if abs(counts) >= saturation_counts:
+        return Verdict(Action.PROTECTIVE_STOP,
+                       f'load cell reads {counts} counts ({force:.1f} N), '
+                       f'saturation at ±{saturation_counts}')
+    return OK
+
+
+def force_limit(force: float, limit: float) -> Verdict:
+    """docs/safety.md §8: a load-cell force above ``limit`` (``safety.force_limit``) in either
+    direction is a protective stop."""
+    if abs(force) > limit:
+        return Verdict(Action.PROTECTIVE_STOP,
+                       f'load-cell force {force:.1f} N exceeds {limit:.1f} N')
+    return OK
