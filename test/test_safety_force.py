@@ -75,14 +75,13 @@ def test_a_force_above_the_limit_either_way_is_a_protective_stop(force, text):
     assert verdict.action is Action.PROTECTIVE_STOP and verdict.reason == text
 
 
-def test_a_rotary_joints_torque_is_judged_on_the_same_rule_and_named_in_n():
-    """The shoulder's limit is 25 N·m; the reason says "N", as the master's report always
-    has (brace_control.can.supervision; Limits.force_unit is not used there)."""
-    assert force_limit(24.99, 25.0) is OK
-    assert force_limit(-25.0, 25.0) is OK
-    verdict = force_limit(-25.04, 25.0)
+def test_a_rotary_joints_torque_is_judged_on_the_same_rule_and_named_in_newton_metres():
+    """The shoulder's limit is 25 N·m; the reason says N·m (it said N before)."""
+    assert force_limit(24.99, 25.0, 'N·m') is OK
+    assert force_limit(-25.0, 25.0, 'N·m') is OK
+    verdict = force_limit(-25.04, 25.0, 'N·m')
     assert verdict.action is Action.PROTECTIVE_STOP
-    assert verdict.reason == 'load-cell force -25.0 N exceeds 25.0 N'
+    assert verdict.reason == 'load-cell force -25.0 N·m exceeds 25.0 N·m'
 
 
 # ---------------------------------------------------------------------- the CAN layer's check
@@ -116,9 +115,9 @@ def test_the_load_cell_is_judged_whether_or_not_the_drive_tracks():
     assert [kind for kind, _ in found] == [FaultKind.FORCE_LIMIT, FaultKind.FOLLOWING_ERROR]
 
 
-def test_a_rotary_joints_check_names_newtons_as_before():
+def test_a_rotary_joints_check_names_newton_metres():
     lim = limits(unit='rad', force_limit=25.0, stroke=(-1.5708, 1.5708), v_max=6.0, a_max=30.0,
                  step_margin=0.005, path_tolerance=0.08)
     assert check_sample(None, sample(2000, 24.9, position=0.1), lim, commanded=None) == []
     assert check_sample(None, sample(2600, 26.0, position=0.1), lim, commanded=None) == [
-        (FaultKind.FORCE_LIMIT, 'load-cell force 26.0 N exceeds 25.0 N')]
+        (FaultKind.FORCE_LIMIT, 'load-cell force 26.0 N·m exceeds 25.0 N·m')]

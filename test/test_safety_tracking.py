@@ -70,13 +70,12 @@ def test_three_periods_worked_by_hand():
         'position changed 2.100 mm in 6.0 ms (physically at most 2.060 mm)')
 
 
-def test_a_rotary_jump_is_judged_on_its_own_v_max_and_named_in_mm_as_before():
-    """6 rad/s: 4 x 6 x 0.002 + 0.005 = 0.053 rad. The reason says "mm" (its mrad), as the
-    master's report always has."""
-    assert position_jump(0.0, 0.0529, PERIOD, **ROTARY) is OK
-    verdict = position_jump(0.0, 0.0531, PERIOD, **ROTARY)
+def test_a_rotary_jump_is_judged_on_its_own_v_max_and_named_in_mrad():
+    """6 rad/s: 4 x 6 x 0.002 + 0.005 = 0.053 rad. The reason says mrad (it said mm before)."""
+    assert position_jump(0.0, 0.0529, PERIOD, **ROTARY, unit='rad') is OK
+    verdict = position_jump(0.0, 0.0531, PERIOD, **ROTARY, unit='rad')
     assert verdict.action is Action.PROTECTIVE_STOP
-    assert verdict.reason == 'position changed 53.100 mm in 2.0 ms (physically at most 53.000 mm)'
+    assert verdict.reason == 'position changed 53.100 mrad in 2.0 ms (physically at most 53.000 mrad)'
 
 
 # ---------------------------------------------------------------------- following error (§11)
@@ -101,12 +100,12 @@ def test_the_tolerance_from_both_sides(sign):
     assert verdict.action is Action.PROTECTIVE_STOP and ' from the target ' in verdict.reason
 
 
-def test_a_rotary_following_error_uses_its_tolerance_in_rad_and_names_m_as_before():
-    assert following_error(0.5, 0.579, 0.08) is OK
-    verdict = following_error(0.5, 0.581, 0.08)
+def test_a_rotary_following_error_uses_its_tolerance_in_rad_and_names_rad():
+    assert following_error(0.5, 0.579, 0.08, 'rad') is OK
+    verdict = following_error(0.5, 0.581, 0.08, 'rad')
     assert verdict.action is Action.PROTECTIVE_STOP
     assert verdict.reason == (
-        'actual 0.50000 m is 81.00 mm from the target 0.58100 m (path tolerance 80.00 mm)')
+        'actual 0.50000 rad is 81.00 mrad from the target 0.58100 rad (path tolerance 80.00 mrad)')
 
 
 # ---------------------------------------------------------------------- the CAN layer's check

@@ -380,11 +380,11 @@ def check_sample(prev: Sample | None, cur: Sample, limits: Limits, *,
     *ok* becomes ``(kind, reason)``, in that order.
     """
     out: list[tuple[FaultKind, str]] = []
-    verdict = _saturation(cur.load_counts, cur.force, limits.saturation_counts)
+    verdict = _saturation(cur.load_counts, cur.force, limits.saturation_counts, limits.force_unit)
     if verdict is not _OK:
         out.append((FaultKind.LOAD_CELL_SATURATED, verdict.reason))
     else:
-        verdict = _force_limit(cur.force, limits.force_limit)
+        verdict = _force_limit(cur.force, limits.force_limit, limits.force_unit)
         if verdict is not _OK:
             out.append((FaultKind.FORCE_LIMIT, verdict.reason))
     if commanded is not None:
@@ -392,10 +392,10 @@ def check_sample(prev: Sample | None, cur: Sample, limits: Limits, *,
             verdict = _position_jump(prev.position, cur.position,
                                      (cur.sync_index - prev.sync_index) * limits.period,
                                      v_max=limits.v_max, jump_factor=limits.jump_factor,
-                                     margin=limits.step_margin)
+                                     margin=limits.step_margin, unit=limits.unit)
             if verdict is not _OK:
                 out.append((FaultKind.POSITION_JUMP, verdict.reason))
-        verdict = _following_error(cur.position, commanded, limits.path_tolerance)
+        verdict = _following_error(cur.position, commanded, limits.path_tolerance, limits.unit)
         if verdict is not _OK:
             out.append((FaultKind.FOLLOWING_ERROR, verdict.reason))
     return out

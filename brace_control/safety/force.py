@@ -7,8 +7,7 @@ A saturated reading says nothing about the force, so the force limit is judged o
 reading below saturation (the caller checks :func:`saturation` first). The platform wrench
 and the soft tiers on the same load cells are in :mod:`.wrench` (§8, §14).
 
-The reasons name the force in N on a rotary joint too (its torque in N·m), as the master's
-reports always have.
+The reasons name the reading in its unit: N on a linear actuator, N·m on a rotary joint.
 """
 from __future__ import annotations
 
@@ -17,24 +16,25 @@ from .verdict import OK, Action, Verdict
 __all__ = ['saturation', 'force_limit']
 
 
-def saturation(counts: float, force: float, saturation_counts: float) -> Verdict:
+def saturation(counts: float, force: float, saturation_counts: float, unit: str = 'N') -> Verdict:
     """docs/safety.md §9: a reading at or above ``saturation_counts`` from the load cell's
     zero (``safety.saturation_fraction`` of its full scale) is a protective stop.
 
     :param counts: the raw reading, counts from its zero.
-    :param force: the same reading in N (only named in the reason).
+    :param force: the same reading in ``unit`` (only named in the reason).
+    :param unit: 'N' (linear actuator) or 'N·m' (rotary joint).
     :param saturation_counts: ``|counts|`` at or above which the cell is saturated."""
     if abs(counts) >= saturation_counts:
         return Verdict(Action.PROTECTIVE_STOP,
-                       f'load cell reads {counts} counts ({force:.1f} N), '
+                       f'load cell reads {counts} counts ({force:.1f} {unit}), '
                        f'saturation at ±{saturation_counts}')
     return OK
 
 
-def force_limit(force: float, limit: float) -> Verdict:
+def force_limit(force: float, limit: float, unit: str = 'N') -> Verdict:
     """docs/safety.md §8: a load-cell force above ``limit`` (``safety.force_limit``) in either
-    direction is a protective stop."""
+    direction is a protective stop; ``unit`` 'N' or 'N·m' (a rotary joint's torque)."""
     if abs(force) > limit:
         return Verdict(Action.PROTECTIVE_STOP,
-                       f'load-cell force {force:.1f} N exceeds {limit:.1f} N')
+                       f'load-cell force {force:.1f} {unit} exceeds {limit:.1f} {unit}')
     return OK
