@@ -167,7 +167,7 @@ def plan_script(config: Any, *, frequency_hz: float = 0.2, periods: int = 2) -> 
     wt = np.linspace(0.0, 2.0 * math.pi, 49)[:, None]
     ph = np.asarray(SWAY_PHASE[kind], dtype=float)
     w = 2.0 * math.pi * float(frequency_hz)
-    max_speed = SWAY_SPEED_SHARE * float(cfg['trajectory'].get('limit_margin', 0.8)) \
+    max_speed = SWAY_SPEED_SHARE * float(cfg.get_path('trajectory.limit_margin')) \
         * float(cfg.get_path('actuator.max_velocity'))
     free = np.flatnonzero(axes)
     # one crank (the trainer): the hand sways along the path, SWAY's first amplitude along the

@@ -479,6 +479,16 @@ def mechanism_params(kind: Any) -> dict[str, Param] | None:
     return {**MECHANISM_COMMON, **MECHANISM_SCHEMAS[kind]}
 
 
+def default(name: str) -> Any:
+    """The schema's default of the shared parameter ``name`` (dotted): where a reader of a
+    plain mapping (not a :class:`~brace_control.config.DeviceConfig`, which has them filled
+    in) needs a fallback, it takes it from here, not from a literal of its own."""
+    spec = lookup(name)
+    if spec is None:
+        raise KeyError(f'no parameter {name!r} in the schema')
+    return spec.default
+
+
 def mechanism_default(kind: Any, key: str) -> Any:
     """The default of ``mechanism.<key>`` for mechanism type ``kind`` (a type without the
     key, an unknown or absent type: the first type's that has it)."""

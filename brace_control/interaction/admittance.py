@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 
 from ..mechanisms import UnreachablePose
-from ..schema import soft_force_limit
+from ..schema import default, soft_force_limit
 
 #: share of each actuator's range kept clear at both ends: the ring must come to rest (on its
 #: braking pose) this far from a stroke end, so the drives' own limits (607Dh) never trip
@@ -153,7 +153,7 @@ class AdmittanceParams:
         return cls(mass=per_axis('mass'), damping=per_axis('damping'), force_axes=axes,
                    dt=1.0 / float(inter['rate_hz']), stop_deceleration=per_axis('stop_deceleration'),
                    actuator_max_velocity=np.full(n, float(act['max_velocity'])),
-                   limit_margin=float(traj.get('limit_margin', 0.8)), soft_force_limit=soft,
+                   limit_margin=float(traj.get('limit_margin', default('trajectory.limit_margin'))), soft_force_limit=soft,
                    actuator_max_force=float(act['max_force']), min_wrench_capacity=cap_arr,
                    max_goal_wrench=np.where(max_goal > 0.0, max_goal, np.inf),
                    goal_rate=np.where(rate > 0.0, rate, np.inf))
