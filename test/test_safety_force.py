@@ -1,5 +1,6 @@
-"""docs/safety.md §8 and §9: a load cell at its saturation (§9), a force above the hard
-limit (§8), as plain logic (brace_control.safety.force), and the CAN layer's per-sample check
+"""docs/safety.md §8, §9 and §14: a load cell at its saturation (§9), a force above the hard
+limit (§8), a motion pressing past the soft limit (§14), as plain logic
+(brace_control.safety.force), and the CAN layer's per-sample check
 (brace_control.can.supervision.check_sample) built on it.
 
 Oracles: the document's rules on hand-picked numbers of the lumbar brace (a load cell
@@ -15,7 +16,7 @@ import math
 import pytest
 
 from brace_control.can.supervision import FaultKind, Limits, Sample, check_sample
-from brace_control.safety import OK, Action, force_limit, saturation
+from brace_control.safety import OK, Action, force_limit, pressing_past_soft_limit, saturation
 
 SATURATED = 28500        # counts from the zero: floor(0.95 x full scale / N per count)
 LIMIT = 250.0            # N
@@ -121,3 +122,28 @@ def test_a_rotary_joints_check_names_newton_metres():
     assert check_sample(None, sample(2000, 24.9, position=0.1), lim, commanded=None) == []
     assert check_sample(None, sample(2600, 26.0, position=0.1), lim, commanded=None) == [
         (FaultKind.FORCE_LIMIT, 'load-cell force 26.0 N·m exceeds 25.0 N·m')]
+
+
+# ---------------------------------------------------------------------- the soft tier (§14)
+
+SOFT = 200.0      # the lumbar brace's soft limit: 0.8 x 250 N (docs/safety.md §14)
+
+
+def test_a_leg_above_the_soft_limit_that_keeps_rising_is_to_brake():
+    """Above the soft limit, a rise of more than 0.5 N since the oldest of at least five
+    recent samples: the motion still presses."""
+    recent = [200.0, 200.2, 200.4, 200.5, 200.5]
+    assert pressing_past_soft_limit(200.51, recent, SOFT)
+    assert pressing_past_soft_limit(-200.51, recent, SOFT)          # either direction
+    assert not pressing_past_soft_limit(200.5, recent, SOFT)        # a rise of 0.5 N exactly
+
+
+def test_a_leg_above_the_soft_limit_that_unloads_goes_on():
+    """A motion that unloads the leg (its force falling) is not braked, however high."""
+    assert not pressing_past_soft_limit(240.0, [245.0, 244.0, 243.0, 242.0, 241.0], SOFT)
+
+
+def test_nothing_is_judged_at_or_below_the_soft_limit_or_on_too_few_samples():
+    assert not pressing_past_soft_limit(SOFT, [150.0] * 5, SOFT)
+    assert not pressing_past_soft_limit(210.0, [150.0] * 4, SOFT)
+    assert pressing_past_soft_limit(210.0, [150.0] * 5, SOFT)

@@ -18,6 +18,7 @@ import time
 from collections.abc import Callable
 
 from ..safety import OK, Action, ForcePrediction, PlatformWrench, Verdict, WrenchTiers
+from ..safety.force import pressing_past_soft_limit
 from ..safety.liveness import heartbeat, overspeed, stale_feedback
 from ..safety.wrench import SOFT_STREAM_S
 from .cia402 import NmtState, State402, decode_state, describe_statusword, emcy_description
@@ -39,8 +40,6 @@ _SW_LIMIT = 1 << 11
 #: gain Kp lags v / Kp (10 1/s and up: 0.1 s); its tracking is judged against the targets
 #: of this long ago as well (safety.path_tolerance still applies to the nearest)
 NO_FEEDFORWARD_LAG_S = 0.1
-#: N the force must have risen over the last samples for the soft limit to brake a motion
-SOFT_RISE_N = 0.5
 #: faults after which the drives still follow commands: the motion is braked along its
 #: path before the quick stop (a per-axis quick stop would leave the axes inconsistent)
 BRAKEABLE = frozenset({FaultKind.FORCE_LIMIT, FaultKind.WRENCH_LIMIT, FaultKind.STEP_LIMIT,
@@ -214,14 +213,13 @@ class Monitors:
                     life.homed = False         # the encoder reference is suspect
             # docs/safety.md §14: above the soft limit a motion that keeps pressing is braked (the
             # cycle does it); a motion that unloads the leg (the force falling) goes on
-            f = abs(s.force)
             trend = d.force_trend
             # (once: while the motion brakes for it the force may still rise a little)
-            if (f > limits.soft_force_limit and tracking and self._motion.executor.moving
+            if (tracking and life.soft_stop is None and self._motion.executor.moving
                     and not self._motion.executor.braking
-                    and len(trend) >= 5 and f - trend[0] > SOFT_RISE_N and life.soft_stop is None):
+                    and pressing_past_soft_limit(s.force, trend, limits.soft_force_limit)):
                 life.soft_stop = (d.index, s.force)
-            trend.append(f)
+            trend.append(abs(s.force))
             if commanded is not None:
                 speed = overspeed(d.velocity, limits.v_max, limits.speed_factor, limits.unit)
                 if not speed.ok:

@@ -16,11 +16,12 @@ them in its SYNC cycle (:mod:`brace_control.can.monitors`); the nodes only repor
   limit (:func:`step_limit`, §7), whose bound :func:`max_step` ramps down near the stroke
   ends (§5);
 - :mod:`.force`: an actuator's load cell at its saturation (:func:`saturation`, §9) or above
-  the hard force limit (:func:`force_limit`, §8);
+  the hard force limit (:func:`force_limit`, §8), and a motion pressing past the soft limit
+  (:func:`pressing_past_soft_limit`, §14);
 - :mod:`.tracking`: a position jump no actuator can make (:func:`position_jump`, §9) and a
   following error beyond the path tolerance (:func:`following_error`, §11).
 """
-from .force import force_limit, saturation
+from .force import force_limit, pressing_past_soft_limit, saturation
 from .stroke import max_step, step_limit, stroke
 from .tracking import following_error, position_jump
 from .verdict import OK, Action, Verdict
@@ -28,4 +29,4 @@ from .wrench import ForcePrediction, LoadPrediction, PlatformWrench, WrenchTiers
 
 __all__ = ['Action', 'Verdict', 'OK', 'PlatformWrench', 'LoadPrediction', 'WrenchTiers',
            'ForcePrediction', 'wrench_axis', 'max_step', 'stroke', 'step_limit', 'saturation',
-           'force_limit', 'position_jump', 'following_error']
+           'force_limit', 'pressing_past_soft_limit', 'position_jump', 'following_error']
