@@ -83,6 +83,7 @@ __all__ = ['BraceMaster', 'MasterConfig', 'MasterState', 'DriveStatus', 'BusStat
            'MasterStatus', 'Feedback']
 
 log = logging.getLogger(__name__)
+
 #: the longest halt / disable waits for the motion to brake along its path (s)
 STOP_WAIT_S = 2.0
 #: s every load cell must read below the release force before a relief counts as done
