@@ -38,6 +38,10 @@ _hypothesis_settings.register_profile('explore', database=None)
 _hypothesis_settings.load_profile(os.environ.get('HYPOTHESIS_PROFILE', 'brace'))
 os.environ.setdefault('MPLBACKEND', 'Agg')
 os.environ.setdefault('RCUTILS_LOGGING_BUFFERED_STREAM', '1')
+# A native crash of any process a test starts (a node, a bring-up, the cycle process) prints
+# its Python stack on its stderr, which the test keeps: one full run saw can_driver_node end
+# with SIGSEGV before its first log line, and nothing said where
+os.environ.setdefault('PYTHONFAULTHANDLER', '1')
 
 
 def _clean_zombie_shm() -> str:
