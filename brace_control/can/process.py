@@ -76,6 +76,8 @@ LOG_SEND_WAIT_S = 0.05
 START_TIMEOUT_S = 60.0
 #: longest the child may take to end once told (s); then it is killed
 EXIT_TIMEOUT_S = 5.0
+#: s the parent waits, once the link closed, for the child's exit code (what ended it)
+LINK_CLOSED_EXIT_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -335,8 +337,14 @@ class MasterProcess:
                     self._ready.set()
         except (EOFError, OSError) as exc:
             code = self._proc.poll()
+            if code is None and not self._closing:
+                # the link closes as the child exits: its exit code says how it ended
+                try:
+                    code = self._proc.wait(LINK_CLOSED_EXIT_S)
+                except subprocess.TimeoutExpired:
+                    code = None
             self._end('the control cycle process was closed' if self._closing else
-                      f'the control cycle process ended (exit code {code})' if code is not None
+                      f'the control cycle process {ended_how(code)}' if code is not None
                       else f'the control cycle process stopped answering ({exc!r})')
         except Exception as exc:  # noqa: BLE001 - an unreadable message: the link is lost
             self._end(f'the control cycle process link broke: {exc!r}')
@@ -870,7 +878,8 @@ def _child_main(fd: int) -> int:
 
     def terminate(signum: int, frame: Any) -> None:
         child.orphaned = True
-        raise SystemExit(0)
+        # a shell's convention, once the drives are disabled (close, below): 128 + the signal
+        raise SystemExit(128 + signum)
     signal.signal(signal.SIGTERM, terminate)
     try:
         with open('/proc/self/comm', 'w') as f:
@@ -886,6 +895,20 @@ def _child_main(fd: int) -> int:
     finally:
         child.close()
     return 0
+
+
+def ended_how(code: int) -> str:
+    """What a cycle process's exit code says (Popen's returncode)."""
+    def name(number: int) -> str:
+        try:
+            return signal.Signals(number).name
+        except ValueError:
+            return f'signal {number}'
+    if code < 0:
+        return f'was killed by {name(-code)} (the drives stop on the master\'s heartbeat loss)'
+    if code > 128:
+        return f'ended on {name(code - 128)} after disabling the drives'
+    return f'ended (exit code {code})'
 
 
 if __name__ == '__main__':
