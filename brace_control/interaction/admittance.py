@@ -89,6 +89,11 @@ class AdmittanceParams:
     :param min_wrench_capacity: the smallest capacity per wrench axis the ring may pass
         (``trajectory.min_wrench_capacity``), or None.
     :param max_goal_wrench: the largest |goal| per pose axis (inf = capacity alone).
+    :param actuator_max_acceleration: the actuators' acceleration limit (m/s² or rad/s², per
+        actuator): braking also keeps every actuator's deceleration ``|J Δv| / dt`` within
+        ``limit_margin`` of it (``None``: the pose axes' ``stop_deceleration`` alone). Per
+        pose axis alone, y and θ braking together asked a lumbar leg for 0.64 m/s² on its
+        0.5 m/s² limit.
     :param goal_rate: how fast the wrench the controller tracks moves to a new goal, per
         pose axis (N/s, N·m/s; inf = a step): a step goal is followed as a ramp
         (reference shaping), so that the ring never runs into the legs' deceleration limit
@@ -108,6 +113,7 @@ class AdmittanceParams:
     min_wrench_capacity: np.ndarray | None = None
     max_goal_wrench: np.ndarray | None = None
     goal_rate: np.ndarray | None = None
+    actuator_max_acceleration: np.ndarray | None = None
 
     @classmethod
     def from_config(cls, cfg: Any, mechanism: Any) -> 'AdmittanceParams':
@@ -153,6 +159,7 @@ class AdmittanceParams:
         return cls(mass=per_axis('mass'), damping=per_axis('damping'), force_axes=axes,
                    dt=1.0 / float(inter['rate_hz']), stop_deceleration=per_axis('stop_deceleration'),
                    actuator_max_velocity=np.full(n, float(act['max_velocity'])),
+                   actuator_max_acceleration=np.full(n, float(act['max_acceleration'])),
                    limit_margin=float(traj.get('limit_margin', default('trajectory.limit_margin'))), soft_force_limit=soft,
                    actuator_max_force=float(act['max_force']), min_wrench_capacity=cap_arr,
                    max_goal_wrench=np.where(max_goal > 0.0, max_goal, np.inf),
@@ -359,11 +366,32 @@ class AdmittanceController:
             return 1.0 / ratio
         return 1.0
 
+    def _brake_share(self, x: np.ndarray, v: np.ndarray) -> float:
+        """The share of the velocity vector ``v`` one period of braking at ``x`` takes off
+        (``inf`` at rest): the velocity shrinks as a whole, the most limited of the pose axes
+        (``stop_deceleration``) and the actuators (``limit_margin x actuator_max_acceleration``,
+        through ``J(x)``) setting the pace."""
+        speed = np.abs(v)
+        with np.errstate(divide='ignore'):
+            share = float(np.min(np.where(speed > 0.0, self.p.stop_deceleration * self.p.dt / speed,
+                                          np.inf)))
+        a = self.p.actuator_max_acceleration
+        if a is not None and np.any(speed):
+            try:
+                qd = np.abs(np.asarray(self.mechanism.jacobian(x), dtype=float) @ v)
+            except ValueError:             # no Jacobian here: the pose axes' rates alone
+                return share
+            with np.errstate(divide='ignore'):
+                share = min(share, float(np.min(np.where(
+                    qd > 0.0, self.p.limit_margin * a * self.p.dt / qd, np.inf))))
+        return share
+
     def braking_pose(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Where the ring comes to rest braking from ``(x, v)`` as :meth:`_brake` does (the
-        velocity vector shrinks as a whole, the most limited axis setting the pace): after
-        ``T = max_i |v_i| / a_i``, at ``x + v T / 2``."""
-        t_stop = float(np.max(np.abs(v) / self.p.stop_deceleration))
+        velocity vector shrinks as a whole, the most limited pose axis or actuator setting
+        the pace, :meth:`_brake_share`): after ``T = dt / share`` (``max_i |v_i| / a_i`` on
+        the pose axes alone), at ``x + v T / 2``."""
+        t_stop = self.p.dt / self._brake_share(x, v)
         return self.constrained(x + 0.5 * v * t_stop, np.zeros_like(v))[0]
 
     def _check_ahead(self, x: np.ndarray, v: np.ndarray) -> str:
@@ -402,14 +430,11 @@ class AdmittanceController:
         """One period of braking: the velocity vector shrinks as a whole within
         ``stop_deceleration`` on every axis (the direction is kept: the ring stays on its
         path); at zero the mode is IDLE."""
-        speed = np.abs(self.v)
-        if not np.any(speed):
+        if not np.any(self.v):
             self.v = np.zeros(self.dof)
             self.mode = Mode.IDLE
             return
-        with np.errstate(divide='ignore'):
-            room = np.where(speed > 0.0, self.p.stop_deceleration * self.p.dt / speed, np.inf)
-        factor = max(0.0, 1.0 - float(np.min(room)))
+        factor = max(0.0, 1.0 - self._brake_share(self.x, self.v))
         v_new = self.v * factor
         self.x, self.v = self.constrained(self.x + 0.5 * (self.v + v_new) * self.p.dt, v_new)
         if factor == 0.0:

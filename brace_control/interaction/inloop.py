@@ -184,7 +184,8 @@ class InLoopAdmittance:
     :param params: :class:`AdmittanceParams` (``dt`` is replaced by ``n x sync_period``).
     :param sync_period: the SYNC period (s).
     :param a_max: actuator acceleration limit (unit/s², per actuator): the velocity change is
-        scaled as a whole to ``params.limit_margin x a_max``.
+        scaled as a whole to ``params.limit_margin x a_max``; braking keeps to it too
+        (``params.actuator_max_acceleration``).
     """
 
     def __init__(self, mechanism: Any, params: AdmittanceParams, *, sync_period: float,
@@ -192,13 +193,15 @@ class InLoopAdmittance:
         rate = 1.0 / params.dt
         self.n_syncs = max(1, round(1.0 / (sync_period * rate)))
         dt = self.n_syncs * sync_period
-        self.params = AdmittanceParams(**{**params.__dict__, 'dt': dt})
+        self.n = int(mechanism.n_actuators)
+        self.a_max = np.broadcast_to(np.asarray(a_max, dtype=float), (self.n,)).copy()
+        # braking keeps to the same actuator limit as the active mode's velocity changes
+        self.params = AdmittanceParams(**{**params.__dict__, 'dt': dt,
+                                          'actuator_max_acceleration': self.a_max})
         self.kin = kinematics_for(mechanism, self.params.actuator_max_force)
         self.mechanism = mechanism
         self.controller = AdmittanceController(self.kin, self.params)
         self.dof = int(mechanism.dof)
-        self.n = int(mechanism.n_actuators)
-        self.a_max = np.broadcast_to(np.asarray(a_max, dtype=float), (self.n,)).copy()
         self.accel_limited = 0
         #: the wrench of the last update (pose axes) and the forces it came from
         self.wrench = np.zeros(self.dof)
