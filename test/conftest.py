@@ -70,27 +70,43 @@ def _clean_zombie_shm() -> str:
         spec.loader.exec_module(module)
         with contextlib.redirect_stdout(out):
             module.Clean().run(force=False)
-        # a port whose creator was killed while making it: an empty file with no lock file,
-        # which the tool does not look at (it goes by the lock files) and a new participant
-        # waits on for good (seen: fastdds_port7001, 0 bytes, left by a run the watchdog
-        # ended). A port being made now is empty for microseconds, not for 10 s.
-        import glob
-        import time
-        for path in glob.glob('/dev/shm/fastdds_port*'):
-            if path.endswith(('_el', '_sl')) or os.path.exists(path + '_el'):
-                continue
-            st = os.stat(path)
-            if st.st_size == 0 and time.time() - st.st_mtime > 10.0:
-                os.remove(path)
-                half_made.append(os.path.basename(path))
+        half_made = _remove_half_made_ports()
     except Exception as exc:  # noqa: BLE001 - a cleanup that fails must not fail the run
         return f'fastdds shm clean failed: {exc!r}'
     return ' '.join(out.getvalue().split()) + (f'; half-made ports removed: {half_made}' if half_made else '')
 
 
+def _remove_half_made_ports() -> list[str]:
+    """Remove the shared-memory ports whose creator died while making them: a port file
+    with no lock file (``_el``) beside it, 10 s old. Fast DDS's clean tool does not look at
+    them (it goes by the lock files), and every new participant that opens the port waits
+    on it for good, in any ROS domain (the SHM port numbers are shared): seen empty
+    (fastdds_port7001, 0 bytes, left by a run the watchdog ended) and full size
+    (fastdds_port7003, 52 400 bytes: both workers of a run, then their replacements, spun
+    in boost's ``priv_open_or_create``). A port being made has its lock file within
+    microseconds, not 10 s."""
+    import glob
+    import time
+    removed = []
+    for path in glob.glob('/dev/shm/fastdds_port*'):
+        if path.endswith(('_el', '_sl')) or os.path.exists(path + '_el'):
+            continue
+        try:
+            if time.time() - os.stat(path).st_mtime > 10.0:
+                os.remove(path)
+                removed.append(os.path.basename(path))
+        except OSError:
+            continue                  # made or removed meanwhile
+    return removed
+
+
 def pytest_sessionstart(session):
     if 'PYTEST_XDIST_WORKER' not in os.environ:     # once per run, before any worker's DDS
         session.config._fastdds_shm_clean = _clean_zombie_shm()
+    else:
+        # a worker that replaces one the watchdog ended starts here: a port its predecessor's
+        # processes left half-made would hang it too
+        _remove_half_made_ports()
 
 
 #: per file, the seconds it took in a measured run (``make test``'s two parts with
