@@ -190,6 +190,8 @@ class AdmittanceController:
         #: a mechanism whose mobility is below its pose's length (the four-bar: one crank,
         #: a point on a curve) keeps the virtual motion on what it can reach
         self._constrain = getattr(mechanism, 'constrain_motion', None)
+        #: the Jacobians of the last two poses asked (:meth:`jacobian`)
+        self._jacobians: dict[bytes, np.ndarray] = {}
 
     # ------------------------------------------------------------------ mode
     def start(self, pose: Sequence[float]) -> None:
@@ -357,7 +359,7 @@ class AdmittanceController:
         if not np.any(v):
             return 1.0
         try:
-            qd = np.asarray(self.mechanism.jacobian(self.x), dtype=float) @ v
+            qd = self.jacobian(self.x) @ v
         except ValueError:
             return 1.0
         ratio = float(np.max(np.abs(qd) / (self.p.limit_margin * self.p.actuator_max_velocity)))
@@ -378,13 +380,27 @@ class AdmittanceController:
         a = self.p.actuator_max_acceleration
         if a is not None and np.any(speed):
             try:
-                qd = np.abs(np.asarray(self.mechanism.jacobian(x), dtype=float) @ v)
+                qd = np.abs(self.jacobian(x) @ v)
             except ValueError:             # no Jacobian here: the pose axes' rates alone
                 return share
             with np.errstate(divide='ignore'):
                 share = min(share, float(np.min(np.where(
                     qd > 0.0, self.p.limit_margin * a * self.p.dt / qd, np.inf))))
         return share
+
+    def jacobian(self, x: Sequence[float]) -> np.ndarray:
+        """The mechanism's ``J(x)`` (read only), kept for the last two poses: one period asks
+        for the pose it starts from (the speed and acceleration limits) and the one it ends
+        at (the braking prediction, the command's ``J v``), each twice."""
+        x = np.asarray(x, dtype=float)
+        key = x.tobytes()
+        J = self._jacobians.get(key)
+        if J is None:
+            J = np.array(self.mechanism.jacobian(x), dtype=float)    # a copy: ours to keep
+            if len(self._jacobians) >= 2:
+                del self._jacobians[next(iter(self._jacobians))]
+            self._jacobians[key] = J
+        return J
 
     def braking_pose(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Where the ring comes to rest braking from ``(x, v)`` as :meth:`_brake` does (the

@@ -255,7 +255,7 @@ class InLoopAdmittance:
             x, v = self._accel_scale(x0, v0, x, v)
         self._pose_hint = x
         lengths = self.kin.inverse(x)
-        J = np.asarray(self.kin.jacobian(x), dtype=float)
+        J = self.controller.jacobian(x)
         return np.asarray(lengths, dtype=float), J @ v, reason
 
     def _accel_scale(self, x0: np.ndarray, v0: np.ndarray, x: np.ndarray, v: np.ndarray
@@ -266,7 +266,7 @@ class InLoopAdmittance:
         dv = v - v0
         if not np.any(dv):
             return x, v
-        J = np.asarray(self.kin.jacobian(x0), dtype=float)
+        J = self.controller.jacobian(x0)
         ratio = float(np.max(np.abs(J @ dv) / (self.params.limit_margin * self.a_max * self.dt)))
         if ratio <= 1.0:
             return x, v
