@@ -47,7 +47,7 @@ def stroke(new: float, lo: float, hi: float, unit: str = 'm') -> Verdict:
 
 
 def step_limit(current: float, new: float, dt: float, *, lo: float, hi: float, v_max: float,
-         a_max: float, margin: float, unit: str = 'm') -> Verdict:
+               a_max: float, margin: float, unit: str = 'm') -> Verdict:
     """docs/safety.md §7: a target further than :func:`max_step` from the current one is a
     protective stop (the ramp of §5 included). The reason gives the step and the bound in mm
     (``unit`` ``'m'``) or mrad."""
