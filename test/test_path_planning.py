@@ -150,3 +150,52 @@ def test_a_point_off_the_curve_is_still_rejected_with_its_distance(trainer):
     off = coupler_point(cfg, 20 * DEG) + np.array([0.0, 0.01])
     with pytest.raises(PlanRejected, match='mm from the coupler curve'):
         plan_motion(mech, home, off, 'minimum_jerk', limits)
+
+
+_FIRST_PLANS = r'''
+import math, sys
+from pathlib import Path
+import numpy as np
+sys.path.insert(0, {test!r})
+from brace_control.config import load_device_config
+from brace_control.mechanisms import mechanism_from_config
+from brace_control.trajectory import Limits, load_planning_modules, plan_motion
+from test_path_planning import coupler_point
+config = Path({config!r})
+plans = []
+for name in ('upper_limb_trainer', 'lumbar_brace', 'continuum', 'shoulder'):
+    cfg = load_device_config(config / (name + '.yaml'))
+    mech = mechanism_from_config(cfg)
+    limits = Limits.from_config(cfg, dof=mech.dof)
+    home = np.asarray(cfg['mechanism']['home_pose'], float)
+    plans.append((name, mech, limits, home))
+load_planning_modules()
+before = set(sys.modules)
+for name, mech, limits, home in plans:
+    if name == 'upper_limb_trainer':
+        goal = coupler_point(load_device_config(config / (name + '.yaml')), 60 * math.pi / 180)
+        plan_motion(mech, home, goal, 'minimum_jerk', limits)
+        continue
+    step = np.full(mech.dof, 0.005)
+    plan_motion(mech, home, home + step, 'minimum_jerk', limits)
+    plan_motion(mech, home, home + step, 'scurve', limits)
+    plan_motion(mech, home, home, 'minimum_jerk', limits, via=[home + step], duration=2.0)
+print(sorted(m for m in set(sys.modules) - before if m.startswith('scipy')))
+'''
+
+
+def test_planning_imports_nothing_after_the_planner_loaded_its_modules():
+    """The trajectory node's planner imports :data:`PLANNING_MODULES` before its first goal,
+    so that no goal's planning time (held to ``trajectory.planning_budget``) includes an
+    import: the first goal on the curve imported ``scipy.interpolate`` while being planned
+    (0.5 s here, 5.4 s on a loaded CI host, and it was rejected for it). In a fresh
+    interpreter, planning on the curve, straight, as an S-curve and through a via point at the
+    optimal time imports no scipy module after ``load_planning_modules()``."""
+    import subprocess
+    import sys
+    here = Path(__file__).resolve().parent
+    code = _FIRST_PLANS.format(test=str(here), config=str(CONFIG.parent))
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         timeout=120, check=False)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip().splitlines()[-1] == '[]', out.stdout

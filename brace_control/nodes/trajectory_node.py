@@ -67,7 +67,7 @@ from ..schema import SCHEMA
 from ..mechanisms import mechanism_from_config
 from ..trajectory import (FittsLaw, GoalEvent, GoalRequest, GoalState, Limits, PlanRejected,
                           PoseError, Profile, TrajectoryError, TrajectoryRunner, arrival_times,
-                          knots_of)
+                          knots_of, load_planning_modules)
 from . import topics
 from .diagnostics import ERROR, OK, WARN, NodeDiagnostics
 from .msgs import (MalformedMessage, ns_to_stamp, pose_from_msg, pose_kind, pose_trajectory_msg,
@@ -245,6 +245,8 @@ class TrajectoryNode(Node):
 
     # ------------------------------------------------------------------ planning (own thread)
     def _planner_loop(self) -> None:
+        # before the first goal, not in its planning time (trajectory.planning_budget)
+        load_planning_modules()
         while True:
             with self._lock:
                 while self._pending is None and not self._closing:

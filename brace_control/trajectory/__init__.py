@@ -21,7 +21,7 @@ from .knots import knots_of, refine
 from .limits import Limits, PathCheck, Violation, check_capacity, check_path, check_pose
 from .logcosh import LogCosh
 from .minimum_jerk import FittsLaw, MinimumJerk, ViaPointMinimumJerk, brake, fitts_duration
-from .planner import Plan, PlanRejected, Profile, plan_motion
+from .planner import Plan, PlanRejected, Profile, load_planning_modules, plan_motion
 from .poses import PoseError, arrival_times
 from .runner import GoalEvent, GoalRequest, GoalState, StartState, TrajectoryRunner
 from .scurve import SCurve
@@ -31,7 +31,7 @@ __all__ = [
     'knots_of', 'refine', 'actuator_knots', 'ACTUATOR_TOLERANCE', 'UnreachableKnot',
     'MinimumJerk', 'ViaPointMinimumJerk', 'SCurve', 'LogCosh', 'fitts_duration', 'FittsLaw',
     'brake', 'Limits', 'Violation', 'PathCheck', 'check_path', 'check_pose', 'check_capacity',
-    'Profile', 'Plan', 'PlanRejected', 'plan_motion',
+    'Profile', 'Plan', 'PlanRejected', 'plan_motion', 'load_planning_modules',
     'GoalState', 'GoalRequest', 'GoalEvent', 'StartState', 'TrajectoryRunner',
     'PoseError', 'arrival_times',
 ]

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import importlib
 import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -81,6 +82,24 @@ def build_profile(profile: Profile, start: np.ndarray, goal: np.ndarray, limits:
         return LogCosh(start, goal, duration, v0=v0, a0=a0)
     return SCurve(start, goal, limits.max_velocity / scale, limits.max_acceleration / scale ** 2,
                   limits.max_jerk / scale ** 3, v0=v0, a0=a0, min_duration=duration)
+
+
+#: what planning imports on first use (the path's splines, the via-time search, the sparse
+#: via-point solve, the mechanisms' roots and integrals), not with the package: a node that
+#: never plans does not pay for them (361bd45)
+PLANNING_MODULES = ('scipy.interpolate', 'scipy.optimize', 'scipy.sparse.linalg', 'scipy.special')
+
+
+def load_planning_modules() -> None:
+    """Import :data:`PLANNING_MODULES` now, so that no goal's planning pays for them.
+
+    The trajectory node's planner does this before its first goal: a goal's planning time
+    is held to ``trajectory.planning_budget``, and the first goal on the trainer's curved
+    path, whose spline imported ``scipy.interpolate``, took 0.5 s more on a quiet machine
+    and over 5 s on a loaded one (rejected: "planning took 5.39 s").
+    """
+    for name in PLANNING_MODULES:
+        importlib.import_module(name)
 
 
 def plan_motion(mech: 'Mechanism', start: ArrayLike, goal: ArrayLike, profile: Profile | str,
