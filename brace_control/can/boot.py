@@ -22,6 +22,7 @@ import can
 import canopen
 
 from ..mechanisms.base import warm_up
+from .bus import open_bus
 from .cia402 import NmtState, OpMode, State402, Statusword
 from .dictionary import Dictionary, DictionaryReadError, ObjectRef
 from .errors import DriverInitializationError, DriverOperationError
@@ -192,9 +193,8 @@ class Boot:
                 # virtual: frames keep the send time the master gives them (one clock
                 # read per SYNC for the master's log and for the simulated drives)
                 extra = {'preserve_timestamps': True} if cfg.interface == 'virtual' else {}
-                self.bus = can.Bus(interface=cfg.interface, channel=cfg.channel,
-                                   bitrate=cfg.bitrate, receive_own_messages=bool(log_path),
-                                   **extra)
+                self.bus = open_bus(cfg.interface, cfg.channel, bitrate=cfg.bitrate,
+                                    receive_own_messages=bool(log_path), **extra)
             except (can.CanError, OSError, ValueError, ImportError) as exc:
                 raise DriverInitializationError(
                     f'cannot open CAN bus interface={cfg.interface!r} channel={cfg.channel!r} '

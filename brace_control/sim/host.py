@@ -39,6 +39,7 @@ from typing import Any
 
 import can
 
+from ..can.bus import open_bus
 from ..can.frame import Frame
 from .device import SimulatedDevice
 from .drive import SimulatedDrive
@@ -64,7 +65,7 @@ class SimBus:
     :param dt_source: ``'1006h'``: the SYNC period is the first drive's communication
         cycle period 1006h (deterministic physics; falls back to the measured interval
         when 1006h is 0); ``'measured'``: the time between SYNC frames (clamped to 0.1 s).
-    :param bus_kwargs: passed to :class:`can.Bus`.
+    :param bus_kwargs: passed to :class:`can.Bus` (:func:`~brace_control.can.bus.open_bus`).
 
     Use as a context manager, or :meth:`start` / :meth:`shutdown` (idempotent).
     """
@@ -122,7 +123,7 @@ class SimBus:
         """Open the bus, start receiving, power on every drive (boot-up messages)."""
         if self.bus is not None:
             return self
-        self.bus = can.Bus(interface=self.interface, channel=self.channel, **self._bus_kwargs)
+        self.bus = open_bus(self.interface, self.channel, **self._bus_kwargs)
         self._notifier = can.Notifier(self.bus, [self._on_message], timeout=0.1)
         self._stop.clear()
         for d in self.drives:

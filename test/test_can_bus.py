@@ -1,0 +1,100 @@
+"""brace_control.can.bus.VirtualBus against python-can's own VirtualBus (the oracle).
+
+Our bus only replaces the per-receiver frame copy (a field-by-field copy instead of
+``copy.deepcopy``): what every receiver gets must be what python-can's bus gives it, each
+receiver its own frame and its own data, and the two kinds of bus share a channel.
+"""
+from __future__ import annotations
+
+import itertools
+
+import can
+import pytest
+
+from brace_control.can.bus import VirtualBus, open_bus
+
+_channels = itertools.count()
+
+FRAMES = [
+    can.Message(arbitration_id=0x80, data=b'', is_extended_id=False, timestamp=1.25),
+    can.Message(arbitration_id=0x201, data=bytes(range(8)), is_extended_id=False, timestamp=2.5),
+    can.Message(arbitration_id=0x1ABCDEF, data=b'\x01\x02\x03', is_extended_id=True),
+    can.Message(arbitration_id=0x601, is_remote_frame=True, dlc=8, is_extended_id=False),
+    can.Message(arbitration_id=0x7FF, is_error_frame=True, is_extended_id=False),
+    can.Message(arbitration_id=0x123, data=bytes(range(64)), is_fd=True, bitrate_switch=True,
+                error_state_indicator=True, is_extended_id=False),
+]
+FIELDS = ('arbitration_id', 'is_extended_id', 'is_remote_frame', 'is_error_frame', 'channel',
+          'dlc', 'data', 'is_fd', 'is_rx', 'bitrate_switch', 'error_state_indicator')
+
+
+def _received(sender_cls, preserve: bool, receive_own: bool) -> list[list[can.Message]]:
+    """Each frame sent by a ``sender_cls`` bus, as two python-can receivers and (with
+    ``receive_own``) the sender itself got it."""
+    channel = f'bus-test-{next(_channels)}'
+    sender = sender_cls(channel=channel, preserve_timestamps=preserve,
+                        receive_own_messages=receive_own)
+    others = [can.Bus(interface='virtual', channel=channel) for _ in range(2)]
+    try:
+        out = []
+        for frame in FRAMES:
+            sender.send(frame)
+            got = [bus.recv(1.0) for bus in others + ([sender] if receive_own else [])]
+            assert all(g is not None for g in got)
+            out.append(got)
+        assert all(bus.recv(0) is None for bus in others + [sender])
+        return out
+    finally:
+        for bus in [sender, *others]:
+            bus.shutdown()
+
+
+@pytest.mark.parametrize('preserve', [False, True])
+@pytest.mark.parametrize('receive_own', [False, True])
+def test_every_receiver_gets_what_python_cans_virtual_bus_gives(preserve, receive_own):
+    ours = _received(VirtualBus, preserve, receive_own)
+    theirs = _received(can.interfaces.virtual.VirtualBus, preserve, receive_own)
+    for frame, got_ours, got_theirs in zip(FRAMES, ours, theirs):
+        for a, b in zip(got_ours, got_theirs):
+            for name in FIELDS:
+                va, vb = getattr(a, name), getattr(b, name)
+                if name == 'channel':                 # each run its own channel name
+                    va, vb = va.rsplit('-', 1)[0], vb.rsplit('-', 1)[0]
+                assert va == vb, (frame, name, va, vb)
+            if preserve:
+                assert a.timestamp == b.timestamp == frame.timestamp
+            else:
+                assert a.timestamp != frame.timestamp or frame.timestamp == 0.0
+
+
+def test_each_receiver_has_its_own_frame_and_data():
+    channel = f'bus-test-{next(_channels)}'
+    sender = open_bus('virtual', channel)
+    assert isinstance(sender, VirtualBus)
+    receivers = [can.Bus(interface='virtual', channel=channel) for _ in range(2)]
+    try:
+        frame = can.Message(arbitration_id=0x181, data=bytearray(b'\x01\x02'), is_extended_id=False)
+        sender.send(frame)
+        a, b = (r.recv(1.0) for r in receivers)
+        assert a is not b and a is not frame and a.data is not b.data and a.data is not frame.data
+        a.data[0] = 0xFF
+        assert b.data == frame.data == bytearray(b'\x01\x02')
+        # and the other way: a plain python-can bus's frames reach ours
+        receivers[0].send(frame)
+        got = sender.recv(1.0)
+        assert got is not None and got.data == frame.data and got.is_rx
+    finally:
+        for bus in [sender, *receivers]:
+            bus.shutdown()
+
+
+def test_a_closed_bus_refuses_to_send():
+    bus = open_bus('virtual', f'bus-test-{next(_channels)}')
+    bus.shutdown()
+    with pytest.raises(can.CanOperationError):
+        bus.send(FRAMES[1])
+
+
+def test_other_interfaces_are_python_cans_own():
+    with pytest.raises((can.CanError, ValueError, ImportError, OSError)):
+        open_bus('no_such_interface', 'x')
