@@ -138,3 +138,27 @@ def test_one_node_list_followed_by_setup_launch_and_readme():
     words = {3: 'three', 4: 'four', 5: 'five', 6: 'six'}
     counted = re.findall(r'\b(three|four|five|six) nodes\b', readme)
     assert counted and set(counted) == {words[len(NODE_NAMES)]}, counted
+
+
+def test_a_node_that_needs_only_the_units_does_not_load_the_master():
+    """``brace_control.can`` loads its names on first use (PEP 562): kinetics_node and
+    trajectory_node import ``can.units``, and every node's configuration check reads
+    ``can.state``; none of them loads the master (with canopen's network and the cycle),
+    0.3-0.4 s of CPU at each start before. The package's names still all resolve."""
+    import subprocess
+    import sys
+    code = ('import sys\n'
+            'import brace_control.nodes.kinetics_node, brace_control.nodes.trajectory_node, '
+            'brace_control.nodes.ik_node, brace_control.nodes.interaction_node\n'
+            'from brace_control.can.units import scaling_from_config\n'
+            'print(sorted(m for m in sys.modules if m.startswith("brace_control.can.")))\n'
+            'import brace_control.can as can\n'
+            'assert all(getattr(can, n) is not None for n in can.__all__)\n'
+            'assert can.CiA402Master is can.BraceMaster\n')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=60,
+                         check=False)
+    assert out.returncode == 0, out.stderr[-2000:]
+    loaded = out.stdout.strip().splitlines()[0]
+    assert 'brace_control.can.units' in loaded
+    for heavy in ('brace_control.can.master', 'brace_control.can.cycle', 'brace_control.can.boot'):
+        assert f"'{heavy}'" not in loaded, loaded

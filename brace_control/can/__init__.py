@@ -20,18 +20,55 @@
 * :mod:`.framelog`: python-can frame log of the bus and its replay.
 * :mod:`.errors`: the exception hierarchy (python-can style).
 """
-from .cia402 import Controlword, NmtState, OpMode, State402, Statusword, decode_state, emcy_description
-from .errors import (DriverError, DriverInitializationError, DriverOperationError,
-                     DriverTimeoutError, FaultLatchedError)
-from ..control.execution import ActuatorTrajectory, ExecutionEvent, PathExecutor, TrajectoryInvalid
-from .master import BraceMaster
-from .state import BusStatus, DriveStatus, Feedback, MasterConfig, MasterState, MasterStatus
-from .supervision import Fault, FaultKind, Limits, Supervisor
-from .timing import PeriodStats, TimingReport
-from .units import AxisScaling, scaling_from_config
+import importlib
+from typing import TYPE_CHECKING, Any
 
-CiA402Master = BraceMaster
-"""Alias: the master is a generic CiA 402 CSP master; the brace is its only user so far."""
+#: each public name and the module it lives in: imported on first use (PEP 562), so that a
+#: node that needs only :mod:`.units` (kinetics, trajectory, ik, interaction) does not load
+#: python-can, canopen and the master (0.3-0.4 s of CPU at every such node's start)
+_HOMES = {
+    **dict.fromkeys(('Controlword', 'NmtState', 'OpMode', 'State402', 'Statusword', 'decode_state',
+                     'emcy_description'), '.cia402'),
+    **dict.fromkeys(('DriverError', 'DriverInitializationError', 'DriverOperationError',
+                     'DriverTimeoutError', 'FaultLatchedError'), '.errors'),
+    **dict.fromkeys(('ActuatorTrajectory', 'ExecutionEvent', 'PathExecutor', 'TrajectoryInvalid'),
+                    '..control.execution'),
+    **dict.fromkeys(('BraceMaster', 'CiA402Master'), '.master'),
+    **dict.fromkeys(('BusStatus', 'DriveStatus', 'Feedback', 'MasterConfig', 'MasterState',
+                     'MasterStatus'), '.state'),
+    **dict.fromkeys(('Fault', 'FaultKind', 'Limits', 'Supervisor'), '.supervision'),
+    **dict.fromkeys(('PeriodStats', 'TimingReport'), '.timing'),
+    **dict.fromkeys(('AxisScaling', 'scaling_from_config'), '.units'),
+}
+
+if TYPE_CHECKING:
+    from ..control.execution import ActuatorTrajectory, ExecutionEvent, PathExecutor, TrajectoryInvalid
+    from .cia402 import Controlword, NmtState, OpMode, State402, Statusword, decode_state, emcy_description
+    from .errors import (DriverError, DriverInitializationError, DriverOperationError,
+                         DriverTimeoutError, FaultLatchedError)
+    from .master import BraceMaster
+    from .state import BusStatus, DriveStatus, Feedback, MasterConfig, MasterState, MasterStatus
+    from .supervision import Fault, FaultKind, Limits, Supervisor
+    from .timing import PeriodStats, TimingReport
+    from .units import AxisScaling, scaling_from_config
+
+
+def __getattr__(name: str) -> Any:
+    home = _HOMES.get(name)
+    if home is None:
+        raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
+    module = importlib.import_module(home, __name__)
+    value = module.BraceMaster if name == 'CiA402Master' else getattr(module, name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_HOMES))
+
+
+#: ``CiA402Master``: an alias of :class:`BraceMaster` (the master is a generic CiA 402 CSP
+#: master; the brace is its only user so far)
 
 __all__ = [
     'BraceMaster', 'CiA402Master', 'ActuatorTrajectory', 'ExecutionEvent', 'PathExecutor',
