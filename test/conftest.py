@@ -10,19 +10,62 @@ import pytest
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 
 
+#: consecutive ROS domains a run reserves: one per pytest-xdist worker (make test runs two)
+DOMAIN_BLOCK = 8
+#: where a run's reservation lives: one lock file per domain id, locked (flock) by the run's
+#: first process for as long as it runs; the kernel drops a lock when its holder ends, however
+DOMAIN_LOCKS = os.path.join('/tmp', 'brace_control_test_domains')
+_held_domain_locks: list[int] = []
+
+
+def _reserve_domains(first: int) -> int:
+    """The first of :data:`DOMAIN_BLOCK` consecutive domain ids (below 233) that no other
+    test run on this machine holds, searched from ``first`` on; held until this process
+    ends. Without it two runs could draw the same domain (the run's pid modulo 200: 1 in 100
+    for two runs side by side, more for a user's fixed ``ROS_DOMAIN_ID``), and one run's
+    nodes then took the other's joint states: a kinetics test's estimate 30 mm off its
+    input, a probe's estimate 52 mm off the simulator's truth."""
+    import fcntl
+    os.makedirs(DOMAIN_LOCKS, mode=0o777, exist_ok=True)
+    last = 233 - DOMAIN_BLOCK
+    for k in range(last + 1):
+        base = (first + k) % (last + 1)
+        fds: list[int] = []
+        for d in range(base, base + DOMAIN_BLOCK):
+            fd = os.open(os.path.join(DOMAIN_LOCKS, f'{d}.lock'), os.O_CREAT | os.O_RDWR, 0o666)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                os.close(fd)
+                break
+            fds.append(fd)
+        if len(fds) == DOMAIN_BLOCK:
+            _held_domain_locks.extend(fds)
+            return base
+        for fd in fds:
+            os.close(fd)                  # closing the file drops its lock
+    raise RuntimeError(f'every block of {DOMAIN_BLOCK} ROS domains is held by another test run '
+                       f'({DOMAIN_LOCKS}): end one, or wait')
+
+
 def _domain_id() -> str:
-    """Our own ROS domain per test run, so two runs on one machine never cross-talk (1..200;
-    Fast DDS domain ids stay below 233), and one per pytest-xdist worker: the workers inherit
-    the environment of the run's first process, and two stacks on one domain answer each
-    other's probes (a worker's node "up" because the other worker's node of that name is).
-    A domain the user set is the first worker's; the others count on from it."""
+    """Our own ROS domain per test run, so two runs on one machine never cross-talk, and one
+    per pytest-xdist worker: the workers inherit the environment of the run's first process,
+    and two stacks on one domain answer each other's probes (a worker's node "up" because the
+    other worker's node of that name is). The run's first process reserves a block of
+    domains (:func:`_reserve_domains`), from the one the user set, else from its pid's; the
+    worker ``gwN`` takes the block's N-th."""
     worker = os.environ.get('PYTEST_XDIST_WORKER', '')      # 'gw0', 'gw1', ...
     index = int(worker[2:]) if worker[2:].isdigit() else 0
     base = os.environ.get('BRACE_TEST_DOMAIN_BASE')
-    if base is None:
-        base = os.environ.get('ROS_DOMAIN_ID') or str(1 + os.getpid() % 200)
+    if base is None or not worker:
+        wanted = int(base or os.environ.get('ROS_DOMAIN_ID') or 1 + os.getpid() % 200)
+        base = str(_reserve_domains(wanted))
         os.environ['BRACE_TEST_DOMAIN_BASE'] = base            # the workers' common base
-    return str((int(base) + index) % 233)
+    if index >= DOMAIN_BLOCK:
+        raise RuntimeError(f'pytest-xdist worker {worker}: a run reserves {DOMAIN_BLOCK} ROS domains, '
+                           f'one per worker; run at most {DOMAIN_BLOCK} workers')
+    return str(int(base) + index)
 
 
 os.environ['ROS_DOMAIN_ID'] = _domain_id()
@@ -132,7 +175,9 @@ def pytest_collection_modifyitems(session, config, items):
 
 def pytest_report_header(config):
     report = getattr(config, '_fastdds_shm_clean', None)
-    return [report] if report else []
+    base = int(os.environ['BRACE_TEST_DOMAIN_BASE'])
+    domains = f'ROS domains {base}..{base + DOMAIN_BLOCK - 1} reserved for this run ({DOMAIN_LOCKS})'
+    return [domains] + ([report] if report else [])
 
 
 @pytest.fixture

@@ -366,20 +366,31 @@ def check_self_stress(dev: Device, probe: Probe, bound: float = 10.0) -> float:
     return worst
 
 
-def _estimate_excursion(err, t: int, est: dict, keys: np.ndarray, truth: list) -> str:
+def _estimate_excursion(err, t: int, est: dict, keys: np.ndarray, truth: list,
+                        joints: list = (), sim_joints: list = ()) -> str:
     """What a failed :func:`check_estimate` saw around the truth sample ``t`` (ns): the
-    estimates and truths of the 60 ms before and after, each as (ms from t, x, y in mm,
-    theta in deg), so that a jump of the estimate tells itself from a truth paired with the
-    wrong SYNC (a fresh-clone run saw the estimate 40 mm off in x once, unexplained)."""
+    estimates and truths of the 150 ms before and after, each as (ms from t, x, y in mm,
+    theta in deg), and the measured and true joint states (lengths in mm, forces in N), so
+    that an estimate's jump tells itself from a truth paired with the wrong SYNC or a
+    reading gone wrong (a fresh-clone run saw the estimate 40 mm off in x once)."""
     def row(stamp: int, msg) -> str:
         x, y, th = _planar(msg)
         return f'{(stamp - t) / 1e6:+7.1f} ms  x {x * 1e3:8.3f}  y {y * 1e3:8.3f}  th {math.degrees(th):7.3f}'
-    near = 60_000_000
-    lines = [f'estimate - truth = {np.round(err, 6).tolist()} at the truth stamp {t} ns', 'estimates:']
+
+    def joint_row(msg) -> str:
+        q = ' '.join(f'{v * 1e3:8.3f}' for v in msg.position)
+        f = ' '.join(f'{v:7.2f}' for v in msg.effort)
+        return f'{(stamp_to_ns(msg.header.stamp) - t) / 1e6:+7.1f} ms  q {q}  f {f}'
+    near = 150_000_000
+    lines = [f'estimate - truth = {np.round(err, 6).tolist()} at the truth stamp {t} ns '
+             f'({len(keys)} estimates, {len(truth)} truths in all)', 'estimates:']
     lines += [row(int(k), est[k]) for k in keys if abs(int(k) - t) <= near]
     lines.append('truths:')
     lines += [row(stamp_to_ns(m.header.stamp), m) for m in truth
               if abs(stamp_to_ns(m.header.stamp) - t) <= near]
+    for name, box in (('joint states', joints), ('true joint states', sim_joints)):
+        lines.append(f'{name}:')
+        lines += [joint_row(m) for m in box if abs(stamp_to_ns(m.header.stamp) - t) <= near]
     return '\n'.join(lines)
 
 
@@ -389,6 +400,7 @@ def check_estimate(probe: Probe, *, position=0.002, angle=0.2 * DEG, share=0.99)
     with probe.lock:
         est = {stamp_to_ns(m.header.stamp): m for m in probe.covariances}
         truth = list(probe.sim_poses)
+        joints, sim_joints = list(probe.joints), list(probe.sim_joints)
     keys = np.array(sorted(est))
     assert len(keys) and truth
     inside, n = 0, 0
@@ -400,7 +412,7 @@ def check_estimate(probe: Probe, *, position=0.002, angle=0.2 * DEG, share=0.99)
         e = est[keys[i]]
         err = _planar(e) - _planar(m)
         assert abs(err[0]) <= position and abs(err[1]) <= position and abs(err[2]) <= angle, \
-            _estimate_excursion(err, t, est, keys, truth)
+            _estimate_excursion(err, t, est, keys, truth, joints, sim_joints)
         cov = np.asarray(e.pose.covariance).reshape(6, 6)
         sigma = np.sqrt(np.array([cov[0, 0], cov[1, 1], cov[5, 5]]))
         inside += bool(np.all(np.abs(err) <= 3 * sigma))
