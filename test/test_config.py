@@ -118,3 +118,52 @@ def test_from_config_rejects_wrong_type(section):
     section['type'] = 'rpr4'
     with pytest.raises(ConfigError, match='rpr3'):
         Rpr3.from_config(section)
+
+
+def _python_parser_loader():
+    """PyYAML's pure-Python safe loader with the device files' own rules (ROS-typed floats,
+    keys given once): the oracle for the C-parsed loader."""
+    from brace_control import config as c
+
+    class PythonLoader(yaml.SafeLoader):
+        pass
+    PythonLoader.yaml_constructors = dict(c._RosYamlLoader.yaml_constructors)
+    PythonLoader.yaml_implicit_resolvers = {k: list(v) for k, v in
+                                            c._RosYamlLoader.yaml_implicit_resolvers.items()}
+    return PythonLoader
+
+
+_ROOT = Path(__file__).resolve().parents[1]
+_YAML_FILES = sorted((_ROOT / 'config').glob('*.yaml')) + sorted((_ROOT / 'test' / 'data').glob('*.yaml'))
+
+
+@pytest.mark.parametrize('path', _YAML_FILES, ids=lambda p: p.name)
+def test_the_device_files_read_the_same_as_with_pyyamls_python_parser(path):
+    """read_yaml parses with libyaml where PyYAML has it (10x faster at every node's start);
+    every bundled file gives the same document as PyYAML's own Python parser."""
+    from brace_control.config import read_yaml
+    assert read_yaml(path) == yaml.load(path.read_text(encoding='utf-8'), Loader=_python_parser_loader())
+
+
+@pytest.mark.parametrize('text, expected', [
+    ('a: 1e4\nb: .5\nc: 1.0e-6\nd: -2.5E+3\ne: 7\nf: [1, 2.0, "x"]\ng: .inf\n',
+     {'a': 1e4, 'b': 0.5, 'c': 1e-6, 'd': -2500.0, 'e': 7, 'f': [1, 2.0, 'x'], 'g': float('inf')}),
+    ('n:\n  m: {k: true, j: null}\n', {'n': {'m': {'k': True, 'j': None}}}),
+])
+def test_ros_typed_numbers_as_ros_reads_them(tmp_path, text, expected):
+    from brace_control.config import read_yaml
+    f = tmp_path / 'x.yaml'
+    f.write_text(text)
+    assert read_yaml(f) == expected == yaml.load(text, Loader=_python_parser_loader())
+
+
+@pytest.mark.parametrize('text, match', [
+    ('a: 1\nb: 2\na: 3\n', r"key 'a' is given twice in one mapping \(lines 1 and 3\)"),
+    ('x: [1, 2\n', r'(?s)not valid YAML: .*line 1'),
+])
+def test_a_key_given_twice_and_broken_yaml_are_named(tmp_path, text, match):
+    from brace_control.config import read_yaml
+    f = tmp_path / 'x.yaml'
+    f.write_text(text)
+    with pytest.raises(ConfigError, match=match):
+        read_yaml(f)

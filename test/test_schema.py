@@ -7,6 +7,7 @@ CANopen node id outside CiA 301's 1..127, a saturation beyond full scale) must b
 from __future__ import annotations
 
 import copy
+import functools
 import os
 import subprocess
 import sys
@@ -31,9 +32,15 @@ CONFIGS = sorted((REPO / 'config').glob('*.yaml'))
 LUMBAR = REPO / 'config' / 'lumbar_brace.yaml'
 
 
-def raw_params(path: Path) -> dict[str, Any]:
-    """The ``ros__parameters`` of a device file, read with plain PyYAML (the oracle)."""
+@functools.lru_cache(maxsize=None)
+def _parsed(path: Path) -> dict[str, Any]:
     return yaml.safe_load(path.read_text())['/**']['ros__parameters']
+
+
+def raw_params(path: Path) -> dict[str, Any]:
+    """The ``ros__parameters`` of a device file, read with plain PyYAML (the oracle); each
+    file parsed once, every caller given its own copy."""
+    return copy.deepcopy(_parsed(path))
 
 
 def leaf_keys(params: dict[str, Any], prefix: tuple[str, ...] = ()) -> list[tuple[str, ...]]:
