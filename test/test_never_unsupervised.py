@@ -274,6 +274,10 @@ def test_a_bringup_that_finds_an_earlier_one_after_its_start_stops_its_stack(ros
         deadline = time.monotonic() + 60
         ros.spin_until(lambda: proc.poll() is not None or time.monotonic() > deadline, 61)
         if proc.poll() is None:
+            # which side did not discover which: the announcement's reader in the bring-up
+            # matched (or not) with this process's writer, and the nodes this process sees
+            matched = pub.get_subscription_count()
+            graph = sorted(n for n, _ in probe.get_node_names_and_namespaces())
             proc.send_signal(signal.SIGINT)
             try:
                 err = proc.communicate(timeout=15)[1]
@@ -283,7 +287,8 @@ def test_a_bringup_that_finds_an_earlier_one_after_its_start_stops_its_stack(ros
             seen = 'already running' in err
             pytest.fail(f'the later bring-up did not stop within 60 s ('
                         f'{"it saw the earlier one: its shutdown hung" if seen else "it never saw the earlier one"}'
-                        f'); its stderr: {err[-3000:]}')
+                        f'; readers of the announcement matched here: {matched}; nodes this process '
+                        f'sees: {graph}); its stderr: {err[-3000:]}')
         err = proc.communicate(timeout=10)[1]
         assert proc.returncode == 1, err[-2000:]
         assert 'ik_node already running' in err and 'pid 4242 on elsewhere' in err, err[-2000:]
