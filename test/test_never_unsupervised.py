@@ -7,6 +7,7 @@ simulator's truth. None of them come from the code under test.
 """
 from __future__ import annotations
 
+import contextlib
 import copy
 import itertools
 import math
@@ -15,6 +16,7 @@ import signal
 import sqlite3
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -23,6 +25,7 @@ import yaml
 
 from brace_control.can.framelog import read_frames
 from brace_control.nodes.spin import BackgroundSpinner
+from ros_helpers import wait_until
 
 
 REPO = Path(__file__).resolve().parent.parent
@@ -255,50 +258,95 @@ def test_a_bringup_learns_of_an_earlier_one_running_its_nodes_whenever_discovery
     assert 'ik_node, kinetics_node already running' in text and 'pid 4 on elsewhere' in text, text
 
 
+_ANNOUNCER = r"""
+import sys, time
+import rclpy
+from diagnostic_msgs.msg import DiagnosticStatus
+from brace_control.nodes import topics
+from brace_control.nodes.msgs import status_msg
+rclpy.init()
+node = rclpy.create_node('rival_announcer')
+pub = node.create_publisher(DiagnosticStatus, topics.BRINGUP, topics.LATCHED_QOS)
+pub.publish(status_msg('brace_bringup', 'running', started=int(sys.argv[1]), host='elsewhere',
+                       pid=4242, namespace='/', nodes=['ik_node']))
+print('announced', flush=True)
+matched = None
+while True:                                   # until the test closes stdin (or kills it)
+    count = pub.get_subscription_count()
+    if count != matched:
+        matched = count
+        print(f'matched {count}', flush=True)
+    time.sleep(0.1)
+"""
+
+
+@contextlib.contextmanager
+def _announcer(started: int):
+    """An earlier bring-up's announcement (``_announce``), published by a process of its own:
+    a fresh participant, not the test process's long-lived one. Yields the lines it printed
+    (``matched N`` whenever its count of matched readers changes)."""
+    proc = subprocess.Popen([sys.executable, '-c', _ANNOUNCER, str(started)], cwd=REPO,
+                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
+    lines: list[str] = []
+
+    def read() -> None:
+        for line in proc.stdout:
+            lines.append(line.strip())
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    try:
+        wait_until(lambda: 'announced' in lines or proc.poll() is not None, 30, 'the announcement')
+        assert 'announced' in lines, lines
+        yield lines
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        reader.join(timeout=5)
+
+
 @pytest.mark.ros
 @pytest.mark.slow
 @pytest.mark.parametrize('mode', [[], ['--processes']], ids=['one-process', 'processes'])
-def test_a_bringup_that_finds_an_earlier_one_after_its_start_stops_its_stack(ros, mode):
+def test_a_bringup_that_finds_an_earlier_one_after_its_start_stops_its_stack(mode):
     """Discovery slower than the graph watch before the start (seen in a full test run on a
     loaded host: the second bring-up started a whole stack beside the first): the bring-up
     still learns of the earlier one from its announcement, stops its own nodes and exits 1
     with the reason. The earlier one here is an announcement only (no node answers), so the
-    watch before the start finds nothing."""
-    probe = ros.node(f'probe_rival_{next(_ids)}')
-    pub = _announce(probe, started=time.time_ns() - 5 * 10**9, nodes=['ik_node'])
-    proc = subprocess.Popen(
-        [sys.executable, '-m', 'brace_control.bringup', str(LUMBAR), *mode, '--nodes', 'ik_node', 'kinetics_node',
-         '--ros-args', '-p', f'can.channel:=rival{os.getpid()}x{next(_ids)}'],
-        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        deadline = time.monotonic() + 60
-        ros.spin_until(lambda: proc.poll() is not None or time.monotonic() > deadline, 61)
-        if proc.poll() is None:
-            # which side did not discover which: the announcement's reader in the bring-up
-            # matched (or not) with this process's writer, and the nodes this process sees
-            matched = pub.get_subscription_count()
-            graph = sorted(n for n, _ in probe.get_node_names_and_namespaces())
-            proc.send_signal(signal.SIGINT)
+    watch before the start finds nothing. The announcement comes from a process of its own:
+    twice in full runs the bring-up never got it from the test process's long-lived
+    participant (16 passes alone)."""
+    with _announcer(time.time_ns() - 5 * 10**9) as announcer:
+        proc = subprocess.Popen(
+            [sys.executable, '-m', 'brace_control.bringup', str(LUMBAR), *mode, '--nodes', 'ik_node',
+             'kinetics_node', '--ros-args', '-p', f'can.channel:=rival{os.getpid()}x{next(_ids)}'],
+            cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        try:
             try:
-                err = proc.communicate(timeout=15)[1]
+                err = proc.communicate(timeout=60)[1]
             except subprocess.TimeoutExpired:
+                proc.send_signal(signal.SIGINT)
+                try:
+                    err = proc.communicate(timeout=15)[1]
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    err = proc.communicate()[1]
+                seen = 'already running' in err
+                pytest.fail(f'the later bring-up did not stop within 60 s ('
+                            f'{"it saw the earlier one: its shutdown hung" if seen else "it never saw the earlier one"}'
+                            f'; the announcer said {announcer}); its stderr: {err[-3000:]}')
+            assert proc.returncode == 1, err[-2000:]
+            assert 'ik_node already running' in err and 'pid 4242 on elsewhere' in err, err[-2000:]
+            # it had started its nodes (the graph watch found nothing) and stopped them
+            assert 'started as processes' in err or ' up (' in err, err[-2000:]
+        finally:
+            if proc.poll() is None:
                 proc.kill()
-                err = proc.communicate()[1]
-            seen = 'already running' in err
-            pytest.fail(f'the later bring-up did not stop within 60 s ('
-                        f'{"it saw the earlier one: its shutdown hung" if seen else "it never saw the earlier one"}'
-                        f'; readers of the announcement matched here: {matched}; nodes this process '
-                        f'sees: {graph}); its stderr: {err[-3000:]}')
-        err = proc.communicate(timeout=10)[1]
-        assert proc.returncode == 1, err[-2000:]
-        assert 'ik_node already running' in err and 'pid 4242 on elsewhere' in err, err[-2000:]
-        # it had started its nodes (the graph watch found nothing) and stopped them
-        assert 'started as processes' in err or ' up (' in err, err[-2000:]
-    finally:
-        probe.destroy_publisher(pub)
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
+                proc.communicate()
 
 
 # docs/safety.md §20
