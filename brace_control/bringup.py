@@ -739,7 +739,7 @@ def _run_processes(args: argparse.Namespace, extra: list[str], stop: threading.E
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
 
-    from .nodes.runner import EXIT_CONFIG
+    from .nodes.runner import EXIT_CONFIG, TEARDOWN_CUT, TEARDOWN_S
     from .nodes.spin import BackgroundSpinner
     group = ProcessBringUp(args.config, sim=not args.no_sim, nodes=args.nodes, extra_args=extra,
                            manual_lifecycle=args.manual_lifecycle)
@@ -782,7 +782,11 @@ def _run_processes(args: argparse.Namespace, extra: list[str], stop: threading.E
         (log.info if ok else log.error)(f'drives disabled: {msg}' if ok
                                         else f'disabling the drives failed: {msg}')
     codes = group.stop()
-    bad = {n: c for n, c in codes.items() if c not in (0, -signal.SIGINT)}
+    cut = sorted(n for n, c in codes.items() if c == TEARDOWN_CUT)
+    if cut:
+        log.warning(f'{", ".join(cut)}: work done, DDS teardown cut short after {TEARDOWN_S:g} s '
+                    '(a deadlock inside Fast DDS, eProsima/Fast-DDS#6502; stacks on stderr)')
+    bad = {n: c for n, c in codes.items() if c not in (0, -signal.SIGINT, TEARDOWN_CUT)}
     if bad:
         log.error(f'exit codes: {bad}')
         rc = rc or 1

@@ -199,3 +199,17 @@ class Ros:
         if self._own_context:
             rclpy.shutdown(context=self.context)
 
+
+
+def unclean_exits(codes: dict[str, int]) -> dict[str, int]:
+    """The node processes of ``ProcessBringUp.stop()`` that did not end cleanly: any exit
+    status but 0 and ``runner.TEARDOWN_CUT`` (the node's work done, its DDS teardown cut
+    short by the node's own watchdog: a deadlock inside Fast DDS, eProsima/Fast-DDS#6502),
+    which is printed on stderr so that a run's log still shows each one."""
+    import sys
+
+    from brace_control.nodes.runner import TEARDOWN_CUT
+    cut = sorted(n for n, c in codes.items() if c == TEARDOWN_CUT)
+    if cut:
+        print(f'note: {", ".join(cut)}: DDS teardown cut short (Fast-DDS#6502)', file=sys.stderr)
+    return {n: c for n, c in codes.items() if c not in (0, TEARDOWN_CUT)}

@@ -59,7 +59,7 @@ from brace_control.demo import prepare_config
 from brace_control.exercise import Goal, write_goal_bag
 from brace_control.nodes import topics
 from brace_control.nodes.msgs import joint_knots_from_msg, pose_msg, stamp_to_ns, status_values
-from ros_helpers import BUSY_HOST_ARGS, LUMBAR_YAML, RELIABLE_10
+from ros_helpers import BUSY_HOST_ARGS, LUMBAR_YAML, RELIABLE_10, unclean_exits
 
 pytestmark = [pytest.mark.ros, pytest.mark.e2e, pytest.mark.slow]
 
@@ -604,7 +604,7 @@ def process_bring_up(device_file, extra_args):
         node.destroy_node()
         rclpy.shutdown(context=ctx)
         codes = group.stop()
-    assert all(c == 0 for c in codes.values()), {n: c for n, c in codes.items() if c != 0}
+    assert not unclean_exits(codes), unclean_exits(codes)
 
 
 @pytest.fixture

@@ -49,6 +49,7 @@ from brace_control.bringup import ProcessBringUp, call_trigger, wait_for_links, 
 from brace_control.nodes import topics
 from brace_control.nodes.msgs import joint_state, ns_to_stamp, pose_msg, stamp_to_ns, status_values
 from brace_control.nodes.spin import BackgroundSpinner
+from ros_helpers import unclean_exits
 from test_e2e import (DEG, Device, Probe, _extra_args, _planar, check_no_stop, check_self_stress,
                       check_still, check_succeeded_goals_are_true, device_file)  # noqa: F401 (fixture)
 
@@ -354,7 +355,7 @@ def operator_stack(device_file: Path, extra_args: Sequence[str] = ()) -> Iterato
         node.destroy_node()
         rclpy.shutdown(context=ctx)
         codes = group.stop()
-    assert all(c == 0 for c in codes.values()), {n: c for n, c in codes.items() if c != 0}
+    assert not unclean_exits(codes), unclean_exits(codes)
 
 
 @pytest.fixture(scope='module')

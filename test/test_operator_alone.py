@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from test_e2e import device_file  # noqa: F401 (fixture)
+from ros_helpers import unclean_exits
 from test_operator import SAFE_GOALS, check_one_end_each, operator_stack, recover_and_enable
 
 pytestmark = [pytest.mark.ros, pytest.mark.e2e, pytest.mark.slow]
@@ -30,7 +31,7 @@ def test_shutdown_with_a_running_goal_aborts_it_without_a_traceback(device_file,
         gid = op.goal(target)
         op.wait_travel(start, target, 0.3)
         codes = op.group.stop()
-        assert all(c == 0 for c in codes.values()), {n: c for n, c in codes.items() if c != 0}
+        assert not unclean_exits(codes), unclean_exits(codes)
         end = op.end(gid, timeout=5)
         assert end['state'] == 'aborted', end
         assert 'shutdown' in end['reason'] or 'stopped' in end['reason'], end

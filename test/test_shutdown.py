@@ -60,3 +60,55 @@ def test_node_process_stops_cleanly(ros, name, sig):
     assert proc.returncode == 0, f'{name} exit code {proc.returncode} on {sig.name}:\n{err[-3000:]}'
     for text in NOT_ON_STDERR:
         assert text not in err, f'{name} printed {text!r} on {sig.name}:\n{err[-3000:]}'
+
+
+_STUCK_TEARDOWN = r"""
+import ctypes, sys
+from rclpy.node import Node
+from brace_control.nodes.runner import run_node
+
+
+class StuckAtTeardown(Node):
+    '''A node whose DDS teardown never returns, holding the interpreter lock the way a native
+    call deadlocked inside Fast DDS does (ctypes.PyDLL keeps the GIL during the call).'''
+
+    def __init__(self):
+        super().__init__('stuck_teardown')
+        self.create_timer(0.05, lambda: print('spinning', flush=True))
+
+    def shutdown(self):
+        print('work done', flush=True)
+
+    def destroy_node(self):
+        ctypes.PyDLL(None).sleep(120)
+
+
+sys.exit(run_node(StuckAtTeardown, executable='stuck', summary='test'))
+"""
+
+
+# docs/safety.md §20
+def test_a_teardown_stuck_in_native_code_is_cut_short_with_its_stacks():
+    """After the node's own work, a DDS teardown that deadlocks in native code holding the
+    interpreter lock (eProsima/Fast-DDS#6502) no longer holds the process: its threads'
+    stacks go to stderr after TEARDOWN_S and the kernel ends it with SIGALRM
+    (``TEARDOWN_CUT``), which the bring-up tells apart from an error."""
+    import time
+
+    from brace_control.nodes.runner import TEARDOWN_CUT, TEARDOWN_S
+    proc = subprocess.Popen([sys.executable, '-c', _STUCK_TEARDOWN], cwd=REPO, env=dict(os.environ),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == 'spinning'
+        proc.send_signal(signal.SIGINT)
+        t0 = time.monotonic()
+        out, err = proc.communicate(timeout=TEARDOWN_S + 10)
+        took = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert 'work done' in out
+    assert proc.returncode == TEARDOWN_CUT, (proc.returncode, err[-2000:])
+    assert TEARDOWN_S <= took <= TEARDOWN_S + 5, took
+    assert 'Timeout' in err and 'destroy_node' in err, err[-2000:]

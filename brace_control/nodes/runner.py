@@ -3,7 +3,11 @@
 ``ros2 run brace_control ik_node --ros-args --params-file config/lumbar_brace.yaml``
 ends up in :func:`run_node`. Exit codes: 0 clean (Ctrl-C / SIGTERM / shutdown),
 1 start-up error of the device (``can_driver_node``: the CAN bus or a drive did not come
-up), 2 configuration error (bad parameter file or value, message on stderr).
+up), 2 configuration error (bad parameter file or value, message on stderr). Ended by
+SIGALRM (:data:`TEARDOWN_CUT`, shell status 142): the node's own work was done (drives
+disabled, goals reported) and the DDS teardown after it did not end within
+:data:`TEARDOWN_S` (a deadlock inside Fast DDS, eProsima/Fast-DDS#6502), its threads'
+stacks on stderr.
 
 SIGINT, SIGTERM, SIGHUP and SIGQUIT (Ctrl-C, launch, systemd, a closed terminal or an SSH
 drop, ``brace-bringup --processes``) end the spin loop, not the ROS context: the node's
@@ -37,7 +41,8 @@ from ..config import ConfigError, load_device_config
 from .spin import spin_once
 
 __all__ = ['run_node', 'usage', 'make_executor', 'freeze_start_up_heap', 'watch_parent',
-           'STOP_SIGNALS', 'PARENT_FD_ENV', 'EXIT_STARTUP', 'EXIT_CONFIG']
+           'STOP_SIGNALS', 'PARENT_FD_ENV', 'EXIT_STARTUP', 'EXIT_CONFIG', 'TEARDOWN_CUT',
+           'TEARDOWN_S']
 
 EXIT_STARTUP = 1
 EXIT_CONFIG = 2
@@ -47,6 +52,11 @@ EXECUTOR_SHUTDOWN_S = 2.0
 #: the process ends itself with its stacks on stderr; less than the bring-up's 10 s
 #: before SIGKILL (``ProcessBringUp.stop``)
 TEARDOWN_S = 6.0
+#: the exit status (``Popen.returncode``) of a node whose DDS teardown :data:`TEARDOWN_S` cut
+#: short after its own work was done: killed by SIGALRM's default action, which needs no
+#: interpreter lock (the stuck native call holds it). Told apart from an error (1, 2) and a
+#: crash (SIGSEGV, SIGABRT): the bring-up reports it as a warning
+TEARDOWN_CUT = -signal.SIGALRM
 #: the signals that stop a node (and the bring-up) cleanly: the drives are disabled first
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
 #: environment variable: the read end of the pipe a parent (brace-bringup) keeps open
@@ -207,11 +217,15 @@ def run_node(factory: Callable[[], Node], *, executable: str, summary: str,
         if callable(shutdown):
             shutdown()
         # The node's own work is done (drives disabled, goals reported). What is left is
-        # DDS teardown, native code that has deadlocked in Fast DDS (eProsima/Fast-DDS#6502)
-        # holding the interpreter lock: a C watchdog (faulthandler's thread needs no GIL)
-        # then prints every thread's stack on stderr and ends the process with exit code 1
-        # after TEARDOWN_S, instead of leaving it for the bring-up's SIGKILL or forever.
-        faulthandler.dump_traceback_later(TEARDOWN_S, exit=True)
+        # DDS teardown, native code that has deadlocked in Fast DDS (eProsima/Fast-DDS#6502:
+        # a remote participant's removal and its lease check, each waiting for the other)
+        # holding the interpreter lock. Two watchdogs that need no GIL: faulthandler's C
+        # thread prints every thread's stack on stderr after TEARDOWN_S, and the kernel ends
+        # the process half a second later with SIGALRM (TEARDOWN_CUT), instead of leaving it
+        # for the bring-up's SIGKILL or forever.
+        faulthandler.dump_traceback_later(TEARDOWN_S, exit=False)
+        signal.signal(signal.SIGALRM, signal.SIG_DFL)
+        signal.setitimer(signal.ITIMER_REAL, TEARDOWN_S + 0.5)
         # a callback still awaiting a peer that is gone (a service call to a node already
         # stopped) must not hold the exit: wait a bounded time for the running callbacks
         spinner.shutdown(timeout_sec=EXECUTOR_SHUTDOWN_S)
