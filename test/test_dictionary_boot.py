@@ -747,3 +747,22 @@ def test_a_drive_that_cannot_home_is_refused_with_the_way_out_and_runs_with_abso
         np.testing.assert_allclose(master.feedback().position, sim.truth().lengths, atol=2e-7)
         _move_and_check(sim, master)          # home() first: nothing to do
         assert master.homed
+
+
+def test_a_drive_whose_file_leaves_its_device_type_at_0_answers_as_a_cia_402_servo_drive(tmp_path, bus_drive, caplog):
+    """maxon's EPOS2 EDS and CiA's sample 402 device leave 1000h unset or 0; a real drive
+    answers its own device type. The simulated drive answers 00020192h (CiA 301: profile 402,
+    a servo drive), so the boot does not warn "not a CiA 402 drive" about a file's silence;
+    a file that gives a value is answered with it."""
+    eds = edited_eds(tmp_path, NANOTEC, set_={('1000', 'DefaultValue'): '0x00000000'})
+    drive, node = bus_drive(eds)
+    assert struct.unpack('<I', node.sdo.upload(0x1000, 0))[0] == 0x00020192
+    raw = canopen.import_od(str(NANOTEC), 1)
+    given = raw_var(raw, 0x1000, 0).default
+    assert given                                           # the file's own value ...
+    drive2, node2 = bus_drive(NANOTEC, node_id=2)
+    assert struct.unpack('<I', node2.sdo.upload(0x1000, 0))[0] == given    # ... answered as is
+    cfg = config(eds=str(eds), load_cell_object='0x3220:1')
+    with caplog.at_level('WARNING'), _rigged(cfg) as (sim, master):
+        master.boot()
+    assert 'not a CiA 402 drive' not in caplog.text, caplog.text

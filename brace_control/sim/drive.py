@@ -96,6 +96,11 @@ MODE_HOMING = int(OpMode.HOMING)
 #: here, at hundreds); 30 Hz gives ``Kp = 2 pi 30 = 188 1/s``, well inside a 500 Hz SYNC
 #: (``Kp T = 0.38``, two sub-steps), and rejects a disturbance within ``5 / Kp = 27 ms``.
 DEFAULT_BANDWIDTH_HZ = 30.0
+#: what a CiA 402 drive answers in its device type 1000h (CiA 301 7.5.2.1: profile 402 in
+#: bits 0-15, 02h "servo drive" in bits 16-23) where its file leaves 1000h at 0 or unset:
+#: a real drive reports its own, and some vendors' EDS (maxon's EPOS2, CiA's sample 402
+#: device) say nothing
+CIA402_DEVICE_TYPE = 0x00020192
 # sub-steps of the position loop per SYNC: Kp h at most this (explicit Euler of the
 # first-order loop is monotone for Kp h < 1)
 _MAX_KP_H = 0.2
@@ -318,6 +323,12 @@ class SimulatedDrive(SimulatedDevice):
                 (0x607F, 0): 0xFFFFFFFF, (0x6083, 0): acc, (0x6084, 0): acc, (0x6085, 0): acc,
                 (0x607D, 1): 0, (0x607D, 2): 0, (0x607C, 0): 0, (0x6098, 0): 0, (0x60B1, 0): 0,
                 (0x6060, 0): 0, (0x6061, 0): 0, (0x1014, 0): 0x80 + self.node_id}
+
+    def _defaults(self) -> dict[tuple[int, int], int]:
+        out = super()._defaults()
+        if (0x1000, 0) in out and not out[(0x1000, 0)]:
+            out[(0x1000, 0)] = CIA402_DEVICE_TYPE
+        return out
 
     def _reset_application(self) -> None:
         """Power-up of the drive application: encoder counts restart at 0, not homed (an
