@@ -296,3 +296,18 @@ def test_the_command_line_runs_as_a_process(tmp_path):
     bad = subprocess.run([sys.executable, '-m', 'brace_control.commission', str(path), 'check'], cwd=REPO,
                          capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL)
     assert bad.returncode == 2 and '--yes' in bad.stderr, bad.stderr
+
+
+@pytest.mark.parametrize('scale, stderr, wrong', [
+    (1.101, 0.075, False),   # the healthy trainer's crank beside two busy loops: 1.35 standard errors
+    (1.101, 0.010, True),    # the same scale measured tightly: a wrong counts per revolution
+    (0.5, 0.075, True),      # a factor of two stands out even from a loose measurement
+    (4.0, 0.5, True),        # x4 evaluation forgotten
+    (1.06, 0.001, False),    # within the tolerance, however tight
+    (0.92, 0.01, False),
+])
+def test_a_scale_counts_as_wrong_only_beyond_the_tolerance_and_its_own_uncertainty(scale, stderr, wrong):
+    """|scale - 1| > SCALE_TOLERANCE (0.1) and > SCALE_SIGMAS (4) standard errors, the
+    thresholds written out here."""
+    from brace_control.commission import scale_is_wrong
+    assert scale_is_wrong(scale, stderr) is (abs(scale - 1) > 0.1 and abs(scale - 1) > 4 * stderr) is wrong

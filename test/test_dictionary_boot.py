@@ -699,6 +699,18 @@ def test_the_brace_moves_with_its_load_cells_on_a_vendor_analog_module():
         _move_and_check(sim, master)
         noise = float(BASE['sim']['load_cell_noise'])
         count = float(BASE['actuator']['load_cell_n_per_count'])
+        # the drives are on target; the body behind the legs may still be settling, and the
+        # master's feedback is a SYNC or more older than the truth read now (a burner run saw
+        # 0.21 N between them): compare once the true forces hold still within a count
+        seen = [sim.truth().forces.copy()]
+
+        def settled() -> bool:
+            seen.append(sim.truth().forces.copy())
+            return len(seen) > 5 and np.ptp(np.array(seen[-5:]), axis=0).max() < count
+        deadline = time.monotonic() + 10
+        while not settled():
+            assert time.monotonic() < deadline, f'the true forces did not settle: {seen[-5:]}'
+            time.sleep(0.02)                 # paces the samples (50 Hz), not a wait
         np.testing.assert_allclose(master.feedback().force, sim.truth().forces, atol=4 * noise + count)
 
 
