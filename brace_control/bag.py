@@ -66,6 +66,12 @@ __all__ = [
     'Recorder', 'main', 'DEFAULT_DEPTH', 'DEFAULT_ACK_TIMEOUT_S',
 ]
 
+#: ``record`` after its stop (SIGINT, SIGTERM, ``--duration``): it goes on taking what was
+#: already published until this long passes without a message ...
+RECORD_DRAIN_QUIET_S = 0.25
+#: ... and at most this long
+RECORD_DRAIN_MAX_S = 2.0
+
 #: History depth of a replayed topic whose recording does not say (``ros2 bag record`` sees
 #: other publishers' history as UNKNOWN, depth 0) -- and the pacing window of KEEP_ALL.
 DEFAULT_DEPTH = 100
@@ -1156,6 +1162,15 @@ def _run_ros(args: argparse.Namespace, ros_args: list[str]) -> int:
         try:
             while not stop.is_set() and (t_end is None or time.monotonic() < t_end):
                 spin_once(executor, 0.05)                 # nodes/spin.py
+            # what was published before the stop and not taken yet (a loaded host delivers
+            # late: a demo's last goal status once missed its bag): spin on until
+            # RECORD_DRAIN_QUIET_S pass without a message, at most RECORD_DRAIN_MAX_S
+            deadline = time.monotonic() + RECORD_DRAIN_MAX_S
+            seen, quiet_since = recorder.total, time.monotonic()
+            while time.monotonic() < deadline and time.monotonic() - quiet_since < RECORD_DRAIN_QUIET_S:
+                spin_once(executor, 0.02)
+                if recorder.total != seen:
+                    seen, quiet_since = recorder.total, time.monotonic()
         except ExternalShutdownException:
             pass
         out = recorder.close()
