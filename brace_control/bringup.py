@@ -601,6 +601,8 @@ GRAPH_WATCH_S = 3.0
 #: s a bring-up in processes mode listens for an earlier one's announcement after its start
 #: (:class:`RivalWatch`; discovery on one machine takes seconds at worst)
 RIVAL_WATCH_S = 30.0
+#: announcements a bring-up's reader keeps until it takes them (one per bring-up running)
+ANNOUNCEMENTS_KEPT = 32
 #: s a node found in the graph has to answer before it counts as gone (a killed process's
 #: nodes stay in the graph until their lease runs out); its service's discovery and answer
 #: took longer than 2 s in test runs on a loaded host
@@ -675,16 +677,26 @@ class RivalWatch:
         import socket
 
         from diagnostic_msgs.msg import DiagnosticStatus
+        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
         from .nodes.msgs import status_msg
         self.names = tuple(names)
         self.namespace = namespace
         self.key = (time.time_ns(), socket.gethostname(), os.getpid())
         self.rival: dict[str, Any] | None = None
+        #: every announcement taken (the keys: started, host, pid), this one's own included
+        self.seen: list[tuple[int, str, int]] = []
         self._node = node
         self._pub = node.create_publisher(DiagnosticStatus, topics.BRINGUP, topics.LATCHED_QOS)
-        self._sub = node.create_subscription(DiagnosticStatus, topics.BRINGUP, self._on_announcement,
-                                             topics.LATCHED_QOS)
+        # each bring-up keeps its one announcement (depth 1), but this reader must keep every
+        # bring-up's until taken: with depth 1 the own announcement, arriving after an
+        # earlier bring-up's, replaced it unread (full test runs: the later bring-up matched
+        # the earlier one's announcement and kept running beside it)
+        self._sub = node.create_subscription(
+            DiagnosticStatus, topics.BRINGUP, self._on_announcement,
+            QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=ANNOUNCEMENTS_KEPT,
+                       reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL))
         self._pub.publish(status_msg('brace_bringup', 'running', started=self.key[0], host=self.key[1],
                                      pid=self.key[2], namespace=namespace, nodes=list(self.names)))
 
@@ -695,6 +707,7 @@ class RivalWatch:
             key = (int(v['started']), v['host'], int(v['pid']))
         except (KeyError, ValueError):
             return                                  # not a bring-up's announcement
+        self.seen.append(key)
         shared = sorted(set(v.get('nodes', '').split(',')) & set(self.names))
         if key < self.key and v.get('namespace') == self.namespace and shared and self.rival is None:
             self.rival = {'nodes': shared, 'pid': key[2], 'host': key[1],

@@ -271,11 +271,12 @@ pub.publish(status_msg('brace_bringup', 'running', started=int(sys.argv[1]), hos
                        pid=4242, namespace='/', nodes=['ik_node']))
 print('announced', flush=True)
 matched = None
+t0 = time.monotonic()
 while True:                                   # until the test closes stdin (or kills it)
     count = pub.get_subscription_count()
     if count != matched:
         matched = count
-        print(f'matched {count}', flush=True)
+        print(f'matched {count} at {time.monotonic() - t0:.1f} s', flush=True)
     time.sleep(0.1)
 """
 
@@ -545,3 +546,25 @@ def test_a_duplicate_key_the_ros_parser_would_take_is_refused(tmp_path):
     # without our loader the last would silently win
     assert yaml.safe_load(path.read_text())['/**']['ros__parameters']['safety']['force_limit'] == 2500.0
     assert key
+
+
+@pytest.mark.ros
+def test_a_rivals_announcement_is_not_lost_behind_later_ones_before_it_is_taken(ros):
+    """The reader keeps every bring-up's announcement until it is taken: an earlier
+    bring-up's, then three others and this one's own, all delivered (acknowledged) before
+    the node spins once. With the reader's depth 1 only the last was left and the rival was
+    never seen (a later bring-up then ran beside an earlier one in full test runs)."""
+    from rclpy.duration import Duration
+
+    from brace_control.bringup import RivalWatch
+    others = ros.node(f'rival_late_others_{next(_ids)}')
+    me = ros.node(f'rival_late_me_{next(_ids)}')
+    watch = RivalWatch(me, ['ik_node', 'kinetics_node'])
+    t = watch.key[0]
+    pubs = [_announce(others, started=t - 10**9, nodes=['ik_node'], pid=7)]          # the rival
+    pubs += [_announce(others, started=t + k * 10**9, nodes=['ik_node'], pid=10 + k) for k in (1, 2, 3)]
+    for pub in [*pubs, watch._pub]:
+        wait_until(lambda pub=pub: pub.get_subscription_count() >= 1, 10, 'the reader matched')
+        assert pub.wait_for_all_acked(Duration(seconds=10)), 'an announcement not acknowledged'
+    ros.spin_until(lambda: len(watch.seen) >= 5, 10, 'five announcements taken')
+    assert watch.rival is not None and watch.rival['pid'] == 7, (watch.rival, watch.seen)
