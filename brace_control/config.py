@@ -40,7 +40,7 @@ class _RosYamlLoader(getattr(yaml, 'CSafeLoader', yaml.SafeLoader)):  # type: ig
     ``1.0e-6`` and ``.5`` are floats (YAML 1.1 makes them strings).
 
     Parsed by libyaml where PyYAML was built with it (``CSafeLoader``: the same safe
-    constructor and resolver over a C parser; a device file in 2 ms instead of 22 ms, at
+    constructor and resolver over a C parser; lumbar_brace.yaml in 0.9 ms instead of 8.3, at
     every node's start and every configuration check), else by PyYAML's Python parser."""
 
 

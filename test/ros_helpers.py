@@ -200,7 +200,6 @@ class Ros:
             rclpy.shutdown(context=self.context)
 
 
-
 def unclean_exits(codes: dict[str, int]) -> dict[str, int]:
     """The node processes of ``ProcessBringUp.stop()`` that did not end cleanly: any exit
     status but 0 and ``runner.TEARDOWN_CUT`` (the node's work done, its DDS teardown cut

@@ -272,7 +272,7 @@ pub.publish(status_msg('brace_bringup', 'running', started=int(sys.argv[1]), hos
 print('announced', flush=True)
 matched = None
 t0 = time.monotonic()
-while True:                                   # until the test closes stdin (or kills it)
+while True:                                   # until the test ends it (SIGTERM)
     count = pub.get_subscription_count()
     if count != matched:
         matched = count
@@ -318,9 +318,10 @@ def test_a_bringup_that_finds_an_earlier_one_after_its_start_stops_its_stack(mod
     loaded host: the second bring-up started a whole stack beside the first): the bring-up
     still learns of the earlier one from its announcement, stops its own nodes and exits 1
     with the reason. The earlier one here is an announcement only (no node answers), so the
-    watch before the start finds nothing. The announcement comes from a process of its own:
-    twice in full runs the bring-up never got it from the test process's long-lived
-    participant (16 passes alone)."""
+    watch before the start finds nothing. The announcement comes from a process of its own,
+    which says when the bring-up's reader matched it: that told the loss in full runs (the
+    reader kept one announcement, the bring-up's own replaced the earlier one's unread; see
+    the next test) from a discovery that never happened."""
     with _announcer(time.time_ns() - 5 * 10**9) as announcer:
         proc = subprocess.Popen(
             [sys.executable, '-m', 'brace_control.bringup', str(LUMBAR), *mode, '--nodes', 'ik_node',

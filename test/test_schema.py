@@ -109,7 +109,7 @@ def test_every_mechanism_type_has_a_key_set():
 
 @pytest.mark.parametrize('path, key', CASES, ids=[f'{c.stem}:{".".join(k)}' for c, k in CASES])
 def test_a_misspelled_key_is_named_with_the_right_one(tmp_path, path, key):
-    params = copy.deepcopy(raw_params(path))
+    params = raw_params(path)
     wrong = misspell(key[-1])
     rename_key(params, key, wrong)
     bad = '.'.join(key[:-1] + (wrong,))
@@ -139,7 +139,7 @@ def test_the_issues_examples(tmp_path):
     for section, wrong, right, value in (('actuator', 'max_velocty', 'max_velocity', 0.065),
                                          ('can', 'heartbeat_consumer_mss', 'heartbeat_consumer_ms', 150),
                                          ('safety', 'force_limt', 'force_limit', 100.0)):
-        params = copy.deepcopy(raw_params(LUMBAR))
+        params = raw_params(LUMBAR)
         del params[section][right]
         params[section][wrong] = value
         file = write(tmp_path, params, 'x.yaml')
@@ -150,7 +150,7 @@ def test_the_issues_examples(tmp_path):
 
 
 def test_a_key_of_another_mechanism_type_is_unknown(tmp_path):
-    params = copy.deepcopy(raw_params(LUMBAR))
+    params = raw_params(LUMBAR)
     params['mechanism']['link_lengths'] = [0.15, 0.12]          # rr2's, not rpr3's
     with pytest.raises(ConfigError, match=r"unknown parameter 'mechanism.link_lengths'.*'rpr3'"):
         load_device_config(write(tmp_path, params))
@@ -174,7 +174,7 @@ def test_a_key_of_another_mechanism_type_is_unknown(tmp_path):
     (('sim', 'load_cell_noise'), float('nan'), ['non-finite']),
 ])
 def test_a_bad_value_names_the_key_the_value_and_what_was_expected(tmp_path, key, value, words):
-    params = copy.deepcopy(raw_params(LUMBAR))
+    params = raw_params(LUMBAR)
     set_key(params, key, value)
     with pytest.raises(ConfigError) as err:
         load_device_config(write(tmp_path, params))
@@ -196,7 +196,7 @@ def test_ros_style_floats_are_floats(tmp_path):
 
 
 def test_a_removed_key_says_what_to_do(tmp_path):
-    params = copy.deepcopy(raw_params(LUMBAR))
+    params = raw_params(LUMBAR)
     params['sim']['drive_acceleration_factor'] = 10.0
     with pytest.raises(ConfigError, match='drive_acceleration_factor.*was removed.*max_acceleration'):
         load_device_config(write(tmp_path, params))
@@ -204,7 +204,7 @@ def test_a_removed_key_says_what_to_do(tmp_path):
 
 # ---------------------------------------------------------------------------- defaults
 def test_absent_keys_get_one_default_and_leg_stiffness_follows_the_actuator(tmp_path):
-    params = copy.deepcopy(raw_params(LUMBAR))
+    params = raw_params(LUMBAR)
     del params['sim']['leg_stiffness']
     del params['can']['homing_method']
     params['actuator']['stiffness'] = 333333.0
@@ -217,7 +217,7 @@ def test_absent_keys_get_one_default_and_leg_stiffness_follows_the_actuator(tmp_
 # ---------------------------------------------------------------------------- the Python API
 @pytest.fixture
 def params() -> dict[str, Any]:
-    return copy.deepcopy(raw_params(LUMBAR))
+    return raw_params(LUMBAR)
 
 
 def test_master_config_from_a_dict_is_range_checked(params):
@@ -270,7 +270,7 @@ def test_node_gets_the_same_defaults_as_the_api(tmp_path):
     from rclpy.node import Node
 
     from brace_control.nodes.params import declare_device_parameters
-    params = copy.deepcopy(raw_params(LUMBAR))
+    params = raw_params(LUMBAR)
     del params['sim']['leg_stiffness']
     params['actuator']['stiffness'] = 333333.0
     path = write(tmp_path, params)
@@ -292,7 +292,7 @@ def test_node_gets_the_same_defaults_as_the_api(tmp_path):
 
 @pytest.mark.ros
 def test_ik_node_with_a_misspelled_key_exits_at_start_up_naming_it(tmp_path):
-    params = copy.deepcopy(raw_params(LUMBAR))
+    params = raw_params(LUMBAR)
     params['safety']['force_limt'] = params['safety'].pop('force_limit')
     path = write(tmp_path, params, 'misspelled.yaml')
     cmd = [sys.executable, '-c', 'import sys; from brace_control.nodes.ik_node import main; sys.exit(main())',

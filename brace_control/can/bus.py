@@ -3,9 +3,9 @@
 python-can's :class:`~can.interfaces.virtual.VirtualBus` hands every other bus on its
 channel its own copy of a sent frame, made with :func:`copy.deepcopy`: 12 us per copy on
 this machine (the memo dictionaries of a generic deep copy), for a frame whose only mutable
-part is its data. The simulated brace puts about ten frames per SYNC on the channel (SYNC,
-three RPDOs, the drives' TPDOs), 5 000 a second at 500 Hz, each copied once per other bus:
-that alone took 6-18 % of a core in the control cycle's process (hot to cold caches).
+part is its data. Every frame the master and the simulated drives put on the channel is
+copied once per other bus: SYNC and the TPDO1s at every SYNC (500 Hz) at rest, the RPDOs as
+well in motion (bench/RESULTS.md: about 0.7 % of a core at rest).
 
 :class:`VirtualBus` makes the same copy field by field (its own ``bytearray`` of the data,
 the receiving side's ``timestamp``, ``channel`` and ``is_rx`` set as python-can sets them),
