@@ -32,13 +32,19 @@ see :meth:`PoseEstimator._least_squares`. Starting from the last estimate keeps 
 solution on the assembly mode the device is in: the iterate descends from there, at most
 ``max_step`` per step, and never jumps to another mode. When the lengths admit no exact
 assembly the result is the least-squares pose continuous with the previous one (reported
-with its residual, never an exception). Two exceptions to "only descend":
+with its residual, never an exception). Three exceptions to "only descend":
 
 * lost track: the solver settled (moved less than ``max_step`` this update) on a
   least-squares minimum while ``forward_nearest(L, last exact estimate)`` finds an
   assembly that closes (a spurious local minimum after a jump in the readings, or a
   solution sliding faster than the iterations follow): that assembly, reported as
   *reacquired*;
+* fallen behind: the iterations ran out on steps cut to ``max_step`` (a jump in the
+  readings longer than they can follow, as when the kinetics node skips joint states
+  during a fast move). The iterate is then somewhere on the way, and on the lumbar brace's
+  nearly parallel legs the way bends far along the barely observed x (up to 87 mm off
+  after a 30 mm jump): the assembly ``forward_nearest`` finds nearest the last exact
+  estimate, when it closes, also reported as *reacquired*;
 * leaving a least-squares episode, which sits where two assembly modes meet (the lumbar
   brace's theta = 0): both are next to it, the mode of the last exact estimate is kept.
 
@@ -209,7 +215,8 @@ class PoseEstimate:
         out; the next update continues from here).
     :ivar slack: names of cables read as slack (no tension), not weighed.
     :ivar reacquired: the solver had settled on a least-squares minimum although the lengths
-        close elsewhere; the estimate took the assembly ``forward_nearest`` found nearest.
+        close elsewhere, or its step-limited iterations ran out before reaching them; the
+        estimate took the assembly ``forward_nearest`` found nearest the last exact one.
     """
 
     pose: np.ndarray
@@ -390,7 +397,10 @@ class PoseEstimator:
             # lumbar brace's theta = 0), both now next to it; the mode of the last exact
             # estimate is kept
             leaving = closes and self.last is not None and not self.last.exact
-            if (settled and not closes) or (leaving and self._last_exact is not None):
+            # fallen behind: the iterations ran out on steps cut to max_step (a jump in the
+            # readings longer than they follow; the iterate is somewhere on the way)
+            behind = limited and not converged
+            if (settled and not closes) or behind or (leaving and self._last_exact is not None):
                 hint = self._last_exact if self._last_exact is not None else pose
                 found = self._reacquire(legs, sigma, hint, near=pose if leaving else None)
                 if found is not None:

@@ -197,8 +197,9 @@ class KineticsNode(Node):
         elif est.step_limited:
             self.diagnostics.set(WARN, (
                 f'the lengths point farther than kinetics.max_step = {self.estimator.max_step} from the '
-                'last estimate (another assembly mode, or a jump in the readings): the estimate moved '
-                'continuously, at most max_step per iteration'))
+                'last estimate (another assembly mode, or a jump in the readings): '
+                + ('the estimate took the assembly nearest the last exact one' if est.reacquired else
+                   'the estimate moved continuously, at most max_step per iteration')))
         elif est.condition > self.singularity_warn_fraction * self._cond_max:
             self.diagnostics.set(WARN, f'near a singularity: cond(J) = {est.condition:.3g}')
         elif self.ambiguous:
