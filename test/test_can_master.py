@@ -87,13 +87,23 @@ def stopped(master):
 
 
 def move(master, delta, duration, *, rate=200.0):
-    """Stream setpoints q0 + delta·s (s: 0 → 1 over ``duration``) at ``rate`` Hz."""
+    """Stream setpoints q0 + delta·s (s: 0 → 1 over ``duration``) at ``rate`` Hz.
+
+    s follows the clock, but advances at most two samples' worth per setpoint: a sender
+    that is late catches up at twice its rate rather than in one jump. (A stall of this
+    thread between reading the clock and sending used to send a setpoint 60 ms ahead of
+    the one before, arriving 5 ms after it: the step limit stopped the test, as it should.)"""
     q0 = master.feedback().position.copy()
     t0 = time.perf_counter()
+    s = 0.0
     while (t := time.perf_counter() - t0) < duration:
-        s = t / duration
+        s = min(t / duration, s + 2.0 / (rate * duration))
         master.set_targets(q0 + np.asarray(delta) * s)
         time.sleep(1.0 / rate)                   # paces the stream at ``rate``, not a wait
+    while s < 1.0:                               # the catch-up, at the same bounded pace
+        s = min(1.0, s + 2.0 / (rate * duration))
+        master.set_targets(q0 + np.asarray(delta) * s)
+        time.sleep(1.0 / rate)
     master.set_targets(q0 + np.asarray(delta))
     return q0
 
