@@ -180,6 +180,30 @@ def test_faulhaber_is_refused_naming_csp_and_every_missing_object():
     assert text.count('cannot drive the brace') == 1              # one message, not one per drive
 
 
+def test_a_drive_of_two_axes_listing_its_objects_per_axis_is_refused_naming_the_entries(tmp_path):
+    """A dual-axis drive's file that lists 6064h and 607Ah as arrays, one entry per axis (the
+    layout of ZLTECH's ZLAC8015D file, NamPER221/base-canopen): the refusal says what the
+    file has there, not that sub-index 0 is read-only or not mappable."""
+    per_axis = {}
+    for index, name, access in (('6064', 'Position actual value', 'ro'), ('607A', 'Target position', 'rw')):
+        per_axis[index] = {'ParameterName': name, 'ObjectType': '0x8', 'SubNumber': '3'}
+        per_axis[f'{index}sub0'] = {'ParameterName': 'Highest sub-index', 'ObjectType': '0x7',
+                                    'DataType': '0x0005', 'AccessType': 'ro', 'DefaultValue': '2',
+                                    'PDOMapping': '0'}
+        for sub, axis in ((1, 'Left'), (2, 'Right')):
+            per_axis[f'{index}sub{sub}'] = {'ParameterName': f'{axis} motor {name}', 'ObjectType': '0x7',
+                                            'DataType': '0x0004', 'AccessType': access,
+                                            'DefaultValue': '0', 'PDOMapping': '1'}
+    eds = edited_eds(tmp_path, NANOTEC, drop=('6064', '607A'), add=per_axis)
+    with pytest.raises(DictionaryError) as err:
+        master_for(config(eds=str(eds), load_cell_object='0x3220:1')).plan()
+    text = str(err.value)
+    for index, name in (('6064h', 'Position actual value'), ('607Ah', 'Target position')):
+        assert f'{index}:0 ({name.lower()}) is an array of 2 entries' in text, text
+        assert f"{index}:1 'Left motor {name}'" in text and f"{index}:2 'Right motor {name}'" in text
+    assert 'not writable' not in text and 'several axes' in text
+
+
 class _Frames(can.Listener):
     def __init__(self) -> None:
         self.frames: list[can.Message] = []

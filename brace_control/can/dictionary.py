@@ -246,6 +246,20 @@ class Dictionary:
     def exists(self, ref: ObjectRef) -> bool:
         return self.var(ref) is not None
 
+    def compound(self, ref: ObjectRef) -> str | None:
+        """When ``ref`` names sub-index 0 of an array or a record where one variable was
+        expected (a drive of several axes that lists 6064h or 607Ah per axis, as the
+        ZLAC8015D's file does): what the file has there, for the message; else ``None``."""
+        obj = self.od.get(ref.index) if ref.index in self.od else None
+        if ref.subindex != 0 or obj is None or isinstance(obj, odmod.ODVariable):
+            return None
+        kind = 'an array' if isinstance(obj, odmod.ODArray) else 'a record'
+        subs = sorted(k for k in obj.subindices if k)
+        names = ', '.join(f'{ref.index:04X}h:{k} {obj.subindices[k].name!r}' for k in subs[:3])
+        return (f'{kind} of {len(subs)} entries ({names}{", ..." if len(subs) > 3 else ""}), '
+                'not one variable: a drive of several axes? This master drives one axis per '
+                'node id, with the objects of CiA 402 as single variables')
+
     def writable(self, ref: ObjectRef) -> bool:
         v = self.var(ref)
         return v is not None and v.writable

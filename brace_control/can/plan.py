@@ -257,6 +257,10 @@ class _Planner:
         if v is None:
             self.missing.append(f'{ref} ({what})')
             return False
+        compound = self.d.compound(ref)
+        if compound:
+            self.missing.append(f'{ref} ({what}) is {compound}')
+            return False
         if write and not v.writable:
             self.missing.append(f'{ref} ({what}) is {v.access_type}, not writable')
             return False
@@ -310,6 +314,10 @@ def _layout(p: _Planner, spec: PdoSpec, node_id: int, roles: Mapping[ObjectRef, 
         v = d.var(ref)
         if v is None:
             p.missing.append(f'{ref} ({where}.mapping): absent'); ok = False; continue
+        if d.compound(ref):
+            p.missing.append(f'{ref} ({where}.mapping): {ref.index:04X}h is an array or a record '
+                             'in the dictionary, not one variable'); ok = False
+            continue
         if not v.pdo_mappable or v.data_type not in STRUCT_CODES:
             p.missing.append(f'{ref} ({where}.mapping): not PDO-mappable in the dictionary'); ok = False
             continue
