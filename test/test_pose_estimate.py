@@ -393,6 +393,22 @@ def device_estimator(name: str) -> tuple[PoseEstimator, DeviceConfig, np.ndarray
     return PoseEstimator(mech, model, rotary=rotary), cfg, np.full(mech.n_actuators, k)
 
 
+def loaded_readings(name: str, seed: int):
+    """The estimator of ``name`` and the makings of loaded readings q = l(p) + f/k: the
+    mechanism, its home pose, the leg stiffness and ``efforts()``, random efforts up to half
+    the actuator limit (cables pull)."""
+    est, cfg, k = device_estimator(name)
+    mech = est.mechanism
+    rng = np.random.default_rng(seed)
+    fmax = 0.5 * float(cfg['actuator']['max_force'])
+    n = mech.n_actuators
+    cable = getattr(mech, 'actuation', None) == 'cable'
+
+    def efforts() -> np.ndarray:
+        return -rng.uniform(5.0, fmax, n) if cable else rng.uniform(-fmax, fmax, n)
+    return est, cfg, k, mech, rng, np.asarray(mech.home_pose, float), efforts
+
+
 def test_every_bundled_device_has_an_actuator_stiffness():
     for name in DEVICES:
         k = load_device_config(CONFIG / f'{name}.yaml')['actuator']['stiffness']
@@ -405,16 +421,8 @@ def test_every_device_recovers_the_pose_of_consistent_loaded_lengths(name):
     actuator limit (cables pull). The estimate is that pose; the covariance is (dof, dof),
     symmetric, positive semi-definite, of rank min(n, dof); along a path each update
     continues from the last estimate in a few iterations."""
-    est, cfg, k = device_estimator(name)
-    mech = est.mechanism
+    est, cfg, k, mech, rng, home, efforts = loaded_readings(name, 5)
     n, dof = mech.n_actuators, mech.dof
-    rng = np.random.default_rng(5)
-    home = np.asarray(mech.home_pose, float)
-    fmax = 0.5 * float(cfg['actuator']['max_force'])
-    cable = getattr(mech, 'actuation', None) == 'cable'
-
-    def efforts() -> np.ndarray:
-        return -rng.uniform(5.0, fmax, n) if cable else rng.uniform(-fmax, fmax, n)
 
     def near_home() -> np.ndarray:
         if n < dof:                                     # the four-bar: a point of its curve
@@ -461,13 +469,8 @@ def test_every_device_is_on_the_pose_right_after_a_jump_in_the_readings(name):
     although the solver's steps (``max_step``) cannot reach it in one update's iterations
     (before the fix: 60 of 200 lumbar jumps, 15 on the 3-RRR, 12 on the lumbar v2 ended up to
     85 mm or 0.09 rad off). Oracle: the pose the lengths were made from."""
-    est, cfg, k = device_estimator(name)
-    mech = est.mechanism
-    n, dof = mech.n_actuators, mech.dof
-    rng = np.random.default_rng(11)
-    home = np.asarray(mech.home_pose, float)
-    fmax = 0.5 * float(cfg['actuator']['max_force'])
-    cable = getattr(mech, 'actuation', None) == 'cable'
+    est, cfg, k, mech, rng, home, efforts = loaded_readings(name, 11)
+    dof = mech.dof
     scale = np.full(dof, 0.05) if cfg['mechanism']['type'] == 'spherical_3rrr' else \
         np.where(np.arange(dof) < 2, 0.01, 0.05)
     jumps = limited = 0
@@ -477,8 +480,7 @@ def test_every_device_is_on_the_pose_right_after_a_jump_in_the_readings(name):
         if not (mech.in_workspace(a) and mech.in_workspace(b)):
             continue
         jumps += 1
-        fa, fb = ((-rng.uniform(5.0, fmax, n), -rng.uniform(5.0, fmax, n)) if cable
-                  else (rng.uniform(-fmax, fmax, n), rng.uniform(-fmax, fmax, n)))
+        fa, fb = efforts(), efforts()
         est.reset(a)
         assert est.update(np.asarray(mech.inverse(a), float) + fa / k, fa).exact
         e = est.update(np.asarray(mech.inverse(b), float) + fb / k, fb)
