@@ -601,6 +601,12 @@ GRAPH_WATCH_S = 3.0
 #: s a bring-up in processes mode listens for an earlier one's announcement after its start
 #: (:class:`RivalWatch`; discovery on one machine takes seconds at worst)
 RIVAL_WATCH_S = 30.0
+#: s the CAN driver's disable service has to answer a bring-up that is stopping
+DISABLE_CALL_S = 5.0
+#: s the bring-up's shutdown may spend in DDS before its node processes are stopped: the
+#: rival watch's end, the disable service's discovery (at most 2 s) and its answer
+#: (DISABLE_CALL_S), and a margin; past it the kernel ends the bring-up (docs/safety.md §20)
+SHUTDOWN_DDS_S = 2.0 + DISABLE_CALL_S + 1.5
 #: announcements a bring-up's reader keeps until it takes them (one per bring-up running)
 ANNOUNCEMENTS_KEPT = 32
 #: s a node found in the graph has to answer before it counts as gone (a killed process's
@@ -752,7 +758,7 @@ def _run_processes(args: argparse.Namespace, extra: list[str], stop: threading.E
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
 
-    from .nodes.runner import EXIT_CONFIG, TEARDOWN_CUT, TEARDOWN_S
+    from .nodes.runner import EXIT_CONFIG, TEARDOWN_CUT, TEARDOWN_S, cut_short_after
     from .nodes.spin import BackgroundSpinner
     group = ProcessBringUp(args.config, sim=not args.no_sim, nodes=args.nodes, extra_args=extra,
                            manual_lifecycle=args.manual_lifecycle)
@@ -787,14 +793,23 @@ def _run_processes(args: argparse.Namespace, extra: list[str], stop: threading.E
         if spinner is not None and time.monotonic() > watch_until:
             spinner.stop()
             spinner = None
+    # The shutdown's DDS calls (the spinner's end, the disable service) may deadlock inside
+    # Fast DDS holding the interpreter lock (eProsima/Fast-DDS#6502): then no Python code
+    # of this process runs again, not even the SIGKILL of its nodes. The kernel ends it
+    # after SHUTDOWN_DDS_S instead (status 142, its stacks on stderr); its node processes
+    # see their parent gone and stop by themselves, each disabling what it drives.
+    cut_short_after(SHUTDOWN_DDS_S)
     if spinner is not None:
         spinner.stop()
     executor.shutdown()
     if DRIVER in group.names and group.procs[DRIVER].poll() is None:
-        ok, msg = disable_drives(helper)
+        ok, msg = disable_drives(helper, timeout=DISABLE_CALL_S)
         (log.info if ok else log.error)(f'drives disabled: {msg}' if ok
                                         else f'disabling the drives failed: {msg}')
+    cut_short_after(None)                     # no DDS call while the nodes are stopped
     codes = group.stop()
+    # the last DDS calls (this process's own endpoints and participant), bounded the same way
+    cut_short_after(TEARDOWN_S)
     cut = sorted(n for n, c in codes.items() if c == TEARDOWN_CUT)
     if cut:
         log.warning(f'{", ".join(cut)}: work done, DDS teardown cut short after {TEARDOWN_S:g} s '

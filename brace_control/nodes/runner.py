@@ -41,8 +41,8 @@ from ..config import ConfigError, load_device_config
 from .spin import spin_once
 
 __all__ = ['run_node', 'usage', 'make_executor', 'freeze_start_up_heap', 'watch_parent',
-           'STOP_SIGNALS', 'PARENT_FD_ENV', 'EXIT_STARTUP', 'EXIT_CONFIG', 'TEARDOWN_CUT',
-           'TEARDOWN_S']
+           'cut_short_after', 'STOP_SIGNALS', 'PARENT_FD_ENV', 'EXIT_STARTUP', 'EXIT_CONFIG',
+           'TEARDOWN_CUT', 'TEARDOWN_S']
 
 EXIT_STARTUP = 1
 EXIT_CONFIG = 2
@@ -61,6 +61,24 @@ TEARDOWN_CUT = -signal.SIGALRM
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
 #: environment variable: the read end of the pipe a parent (brace-bringup) keeps open
 PARENT_FD_ENV = 'BRACE_PARENT_FD'
+
+
+def cut_short_after(seconds: float | None) -> None:
+    """From now on this process lives at most ``seconds`` more (``None``: no limit again).
+
+    For the DDS calls after a process's own work, any of which may deadlock inside Fast DDS
+    holding the interpreter lock (eProsima/Fast-DDS#6502), so that no Python code runs again.
+    Two watchdogs that need no GIL: faulthandler's C thread prints every thread's stack on
+    stderr after ``seconds``, and the kernel ends the process half a second later with
+    SIGALRM's default action (:data:`TEARDOWN_CUT`, shell status 142). Called again, it
+    replaces the limit."""
+    if seconds is None:
+        signal.setitimer(signal.ITIMER_REAL, 0.0)
+        faulthandler.cancel_dump_traceback_later()
+        return
+    faulthandler.dump_traceback_later(seconds, exit=False)
+    signal.signal(signal.SIGALRM, signal.SIG_DFL)
+    signal.setitimer(signal.ITIMER_REAL, seconds + 0.5)
 
 
 def _parent_death_signal(sig: int) -> bool:
@@ -219,13 +237,9 @@ def run_node(factory: Callable[[], Node], *, executable: str, summary: str,
         # The node's own work is done (drives disabled, goals reported). What is left is
         # DDS teardown, native code that has deadlocked in Fast DDS (eProsima/Fast-DDS#6502:
         # a remote participant's removal and its lease check, each waiting for the other)
-        # holding the interpreter lock. Two watchdogs that need no GIL: faulthandler's C
-        # thread prints every thread's stack on stderr after TEARDOWN_S, and the kernel ends
-        # the process half a second later with SIGALRM (TEARDOWN_CUT), instead of leaving it
-        # for the bring-up's SIGKILL or forever.
-        faulthandler.dump_traceback_later(TEARDOWN_S, exit=False)
-        signal.signal(signal.SIGALRM, signal.SIG_DFL)
-        signal.setitimer(signal.ITIMER_REAL, TEARDOWN_S + 0.5)
+        # holding the interpreter lock: ended after TEARDOWN_S with its stacks on stderr
+        # (TEARDOWN_CUT), instead of leaving it for the bring-up's SIGKILL or forever.
+        cut_short_after(TEARDOWN_S)
         # a callback still awaiting a peer that is gone (a service call to a node already
         # stopped) must not hold the exit: wait a bounded time for the running callbacks
         spinner.shutdown(timeout_sec=EXECUTOR_SHUTDOWN_S)
