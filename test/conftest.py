@@ -278,8 +278,8 @@ def _frozen_heap(item) -> None:
     is unfrozen and collected once first, so what a file left behind is freed. The nodes do
     the same for their own start-up heap (``runner``, ``can.process``)."""
     import gc
-    if item.module is not _gc_module[0]:
-        _gc_module[0] = item.module
+    if item.path != _gc_module[0]:
+        _gc_module[0] = item.path
         gc.unfreeze()
     gc.collect()
     gc.freeze()
