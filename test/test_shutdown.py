@@ -112,3 +112,69 @@ def test_a_teardown_stuck_in_native_code_is_cut_short_with_its_stacks():
     assert proc.returncode == TEARDOWN_CUT, (proc.returncode, err[-2000:])
     assert TEARDOWN_S <= took <= TEARDOWN_S + 5, took
     assert 'Timeout' in err and 'destroy_node' in err, err[-2000:]
+
+
+_STUCK_SPIN = r"""
+import ctypes, sys
+from rclpy.node import Node
+from brace_control.nodes.runner import run_node
+
+
+class StuckInACallback(Node):
+    '''A node whose callback, after a few turns, never returns from a native call holding the
+    interpreter lock (ctypes.PyDLL keeps the GIL), as a call deadlocked inside Fast DDS or the
+    executor does: its spin loop stops turning, and no signal handler can run any more.'''
+
+    def __init__(self):
+        super().__init__('stuck_in_a_callback')
+        self.turns = 0
+        self.create_timer(0.05, self.tick)
+
+    def tick(self):
+        self.turns += 1
+        print('spinning', flush=True)
+        if self.turns == 60:                  # 3 s of spinning: longer than the limit, 2 s
+            print('stuck', flush=True)
+            ctypes.PyDLL(None).sleep(120)
+
+
+sys.exit(run_node(StuckInACallback, executable='stuck', summary='test'))
+"""
+
+
+# docs/safety.md §20
+def test_a_spin_loop_stuck_in_native_code_ends_the_node_with_its_stacks():
+    """A node whose spin loop stops turning (a native call that never returns, holding the
+    interpreter lock: no Python code of the process runs again, no stop signal's handler, no
+    parent watch) ends itself after BRACE_SPIN_STALL_S with its threads' stacks on stderr
+    (SIGALRM, TEARDOWN_CUT), instead of living on unsupervised; while it spins (3 s here) it
+    keeps running past that time."""
+    import time
+
+    from brace_control.nodes.runner import SPIN_STALL_ENV, TEARDOWN_CUT
+    env = {**os.environ, SPIN_STALL_ENV: '2'}
+    proc = subprocess.Popen([sys.executable, '-c', _STUCK_SPIN], cwd=REPO, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        while (line := proc.stdout.readline().strip()) != 'stuck':
+            assert line == 'spinning', (line, proc.poll())
+        t0 = time.monotonic()
+        out, err = proc.communicate(timeout=20)
+        took = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == TEARDOWN_CUT, (proc.returncode, err[-2000:])
+    assert took <= 2.0 + 0.5 + 1.0 + 2.0, took           # armed up to 1 s before, + slack
+    assert 'Timeout' in err and 'tick' in err, err[-2000:]
+
+
+@pytest.mark.parametrize('value', ['soon', '-1', 'nan'])
+def test_a_spin_stall_limit_that_is_no_number_of_seconds_is_a_configuration_error(value):
+    from brace_control.nodes.runner import EXIT_CONFIG, SPIN_STALL_ENV
+    proc = subprocess.run([sys.executable, '-m', 'brace_control.nodes.ik_node', '--ros-args',
+                           '--params-file', str(LUMBAR_YAML)], cwd=REPO, capture_output=True,
+                          text=True, timeout=60, env={**os.environ, SPIN_STALL_ENV: value})
+    assert proc.returncode == EXIT_CONFIG, (proc.returncode, proc.stderr[-2000:])
+    assert f'{SPIN_STALL_ENV}={value!r}: expected seconds >= 0' in proc.stderr, proc.stderr[-2000:]

@@ -4,10 +4,14 @@
 ends up in :func:`run_node`. Exit codes: 0 clean (Ctrl-C / SIGTERM / shutdown),
 1 start-up error of the device (``can_driver_node``: the CAN bus or a drive did not come
 up), 2 configuration error (bad parameter file or value, message on stderr). Ended by
-SIGALRM (:data:`TEARDOWN_CUT`, shell status 142): the node's own work was done (drives
-disabled, goals reported) and the DDS teardown after it did not end within
-:data:`TEARDOWN_S` (a deadlock inside Fast DDS, eProsima/Fast-DDS#6502), its threads'
-stacks on stderr.
+SIGALRM (:data:`TEARDOWN_CUT`, shell status 142), its threads' stacks on stderr: the node's
+own work was done (drives disabled, goals reported) and the DDS teardown after it did not
+end within :data:`TEARDOWN_S` (a deadlock inside Fast DDS, eProsima/Fast-DDS#6502); or its
+spin loop stopped turning for :data:`SPIN_STALL_S` (a native call that never returned: such
+a node serves nothing, and would not see a stop signal or its parent's end either); or its
+own shutdown took longer than :data:`SHUTDOWN_S`. A driver node ended so leaves the drives to
+the control cycle's process, which disables them when its link to the node closes (real
+drives also stop on the master's heartbeat).
 
 SIGINT, SIGTERM, SIGHUP and SIGQUIT (Ctrl-C, launch, systemd, a closed terminal or an SSH
 drop, ``brace-bringup --processes``) end the spin loop, not the ROS context: the node's
@@ -25,10 +29,12 @@ from __future__ import annotations
 
 import faulthandler
 import gc
+import math
 import os
 import signal
 import sys
 import threading
+import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -42,7 +48,7 @@ from .spin import spin_once
 
 __all__ = ['run_node', 'usage', 'make_executor', 'freeze_start_up_heap', 'watch_parent',
            'cut_short_after', 'STOP_SIGNALS', 'PARENT_FD_ENV', 'EXIT_STARTUP', 'EXIT_CONFIG',
-           'TEARDOWN_CUT', 'TEARDOWN_S']
+           'TEARDOWN_CUT', 'TEARDOWN_S', 'SPIN_STALL_S', 'SPIN_STALL_ENV', 'SHUTDOWN_S']
 
 EXIT_STARTUP = 1
 EXIT_CONFIG = 2
@@ -57,6 +63,13 @@ TEARDOWN_S = 6.0
 #: interpreter lock (the stuck native call holds it). Told apart from an error (1, 2) and a
 #: crash (SIGSEGV, SIGABRT): the bring-up reports it as a warning
 TEARDOWN_CUT = -signal.SIGALRM
+#: s the spin loop may stop turning before the process ends itself (module docstring); the
+#: environment variable ``BRACE_SPIN_STALL_S`` sets it (0: never, e.g. under a debugger)
+SPIN_STALL_S = 5.0
+SPIN_STALL_ENV = 'BRACE_SPIN_STALL_S'
+#: s the node's own shutdown (the driver: disabling the drives; the trajectory node: its goals
+#: reported) may take before the process ends itself
+SHUTDOWN_S = 15.0
 #: the signals that stop a node (and the bring-up) cleanly: the drives are disabled first
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
 #: environment variable: the read end of the pipe a parent (brace-bringup) keeps open
@@ -79,6 +92,22 @@ def cut_short_after(seconds: float | None) -> None:
     faulthandler.dump_traceback_later(seconds, exit=False)
     signal.signal(signal.SIGALRM, signal.SIG_DFL)
     signal.setitimer(signal.ITIMER_REAL, seconds + 0.5)
+
+
+def spin_stall_s(env: dict[str, str] | None = None) -> float:
+    """:data:`SPIN_STALL_S`, or the environment's ``BRACE_SPIN_STALL_S`` (s, 0: off).
+
+    :raises ConfigError: a value that is not a number >= 0 (named, with what is expected)."""
+    text = (os.environ if env is None else env).get(SPIN_STALL_ENV, '')
+    if not text.strip():
+        return SPIN_STALL_S
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (value >= 0.0 and math.isfinite(value)):
+        raise ConfigError(f'{SPIN_STALL_ENV}={text!r}: expected seconds >= 0 (0: no limit)')
+    return value
 
 
 def _parent_death_signal(sig: int) -> bool:
@@ -191,6 +220,7 @@ def run_node(factory: Callable[[], Node], *, executable: str, summary: str,
     try:
         for f in params_files(argv):            # ours first: rcl's parser takes a key twice
             load_device_config(f)
+        stall_s = spin_stall_s()
     except ConfigError as exc:
         print(f'{executable}: configuration error: {exc}', file=sys.stderr)
         return EXIT_CONFIG
@@ -216,8 +246,13 @@ def run_node(factory: Callable[[], Node], *, executable: str, summary: str,
             start(node)
         freeze_start_up_heap()
         spinner.add_node(node)
-        # wake at least every 0.1 s to see a signal (Python runs handlers between bytecodes)
+        armed = -math.inf
+        # wake at least every 0.1 s to see a signal (Python runs handlers between bytecodes);
+        # the loop's own dead-man's switch re-armed about once a second (module docstring)
         while not stop.is_set() and rclpy.ok():
+            if stall_s and time.monotonic() - armed >= 1.0:
+                cut_short_after(stall_s)
+                armed = time.monotonic()
             spin_once(spinner, 0.1)                     # nodes/spin.py
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
@@ -233,6 +268,7 @@ def run_node(factory: Callable[[], Node], *, executable: str, summary: str,
     finally:
         shutdown = getattr(node, 'shutdown', None)
         if callable(shutdown):
+            cut_short_after(SHUTDOWN_S)
             shutdown()
         # The node's own work is done (drives disabled, goals reported). What is left is
         # DDS teardown, native code that has deadlocked in Fast DDS (eProsima/Fast-DDS#6502:
