@@ -43,6 +43,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import inspect
+import math
 import os
 import shutil
 import signal
@@ -758,10 +759,17 @@ def _run_processes(args: argparse.Namespace, extra: list[str], stop: threading.E
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
 
-    from .nodes.runner import EXIT_CONFIG, TEARDOWN_CUT, TEARDOWN_S, cut_short_after
+    from .nodes.runner import EXIT_CONFIG, TEARDOWN_CUT, TEARDOWN_S, cut_short_after, spin_stall_s
     from .nodes.spin import BackgroundSpinner
     group = ProcessBringUp(args.config, sim=not args.no_sim, nodes=args.nodes, extra_args=extra,
                            manual_lifecycle=args.manual_lifecycle)
+    # the nodes' dead-man's switch (runner.SPIN_STALL_S) for this process too, armed before its
+    # first DDS call and re-armed by its main loop: the rival watch's DDS calls in the spinner
+    # thread may deadlock holding the interpreter lock; then the main loop stops turning, the
+    # kernel ends the bring-up, and its nodes, seeing their parent gone, stop themselves
+    stall_s = spin_stall_s()
+    if stall_s:
+        cut_short_after(stall_s)
     helper = rclpy.create_node('brace_bringup')
     log = helper.get_logger()
     # the announcements on a node of their own, spun beside the main thread (which only
@@ -779,7 +787,11 @@ def _run_processes(args: argparse.Namespace, extra: list[str], stop: threading.E
     if args.manual_lifecycle and DRIVER in group.names:
         log.info(_MANUAL_HINT)
     rc = 0
+    armed = -math.inf
     while not stop.wait(0.2):
+        if stall_s and time.monotonic() - armed >= 1.0:
+            cut_short_after(stall_s)
+            armed = time.monotonic()
         dead = group.failed()
         if dead:
             log.error(f'node process(es) ended: {dead}; stopping the others')

@@ -239,6 +239,63 @@ def test_bringup_ended_mid_motion_ends_every_node_with_the_drives_stopped(ros, t
     assert len(targets) > 10
 
 
+#: brace-bringup whose rival watch, in its spinner thread, never returns from handling its own
+#: announcement, holding the interpreter lock (ctypes.PyDLL), as a deadlocked DDS call would
+_STUCK_WATCH = r"""
+import ctypes, sys
+import brace_control.bringup as bringup
+
+
+def _stuck_announcement(self, msg):
+    print('the rival watch, stuck', flush=True)
+    ctypes.PyDLL(None).sleep(120)
+
+
+bringup.RivalWatch._on_announcement = _stuck_announcement
+sys.exit(bringup.main(sys.argv[1:]))
+"""
+
+
+# docs/safety.md §20
+@pytest.mark.ros
+@pytest.mark.slow
+def test_a_bringup_stuck_in_native_code_while_running_ends_and_so_do_its_nodes():
+    """``brace-bringup --processes`` whose own DDS work (the rival watch's spinner) hangs in
+    a native call holding the interpreter lock while the stack runs: its main loop stops
+    turning, no signal handler of it could run, yet its nodes must not live on unsupervised.
+    The kernel ends it after BRACE_SPIN_STALL_S (SIGALRM, TEARDOWN_CUT, stacks on stderr)
+    and every node process then ends, seeing its parent gone."""
+    from brace_control.nodes.runner import SPIN_STALL_ENV, TEARDOWN_CUT
+    from conftest import DOMAIN_BLOCK
+    tag = f'stuckwatch{os.getpid()}x{next(_ids)}'
+    # on a domain of the run's block that no worker uses: the killed bring-up's readers stay
+    # matched in other participants until its lease runs out (20 s), and a later test's
+    # reliable writer would wait for their acknowledgements (the rival test did, once)
+    base, ours = int(os.environ['BRACE_TEST_DOMAIN_BASE']), os.environ['ROS_DOMAIN_ID']
+    spare = next(str(d) for d in range(base + DOMAIN_BLOCK - 1, base, -1) if str(d) != ours)
+    proc = subprocess.Popen(
+        [sys.executable, '-c', _STUCK_WATCH, str(LUMBAR), '--processes', '--ros-args',
+         '-p', f'can.channel:={tag}'],
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env={**os.environ, SPIN_STALL_ENV: '2', 'ROS_DOMAIN_ID': spare})
+    try:
+        assert proc.stdout.readline().strip() == 'the rival watch, stuck', proc.poll()
+        t_stuck = time.monotonic()
+        proc.wait(timeout=30)
+        t_end = time.monotonic()
+        assert proc.returncode == TEARDOWN_CUT, proc.returncode
+        assert t_end - t_stuck <= 2.0 + 0.5 + 1.0 + 2.0, t_end - t_stuck  # armed <= 1 s before
+        _wait_nodes_gone(tag, t_end, NODES_GONE_S + 2.0 + 1.0)  # or their own 2 s stall cut
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        for pid in _node_pids(tag):
+            os.kill(pid, signal.SIGKILL)
+    err = proc.stderr.read()
+    assert 'Timeout' in err and '_stuck_announcement' in err, err[-3000:]
+
+
 # docs/safety.md §20
 @pytest.mark.ros
 @pytest.mark.slow
