@@ -43,7 +43,6 @@ from __future__ import annotations
 import argparse
 import importlib
 import inspect
-import math
 import os
 import shutil
 import signal
@@ -759,7 +758,8 @@ def _run_processes(args: argparse.Namespace, extra: list[str], stop: threading.E
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
 
-    from .nodes.runner import EXIT_CONFIG, TEARDOWN_CUT, TEARDOWN_S, cut_short_after, spin_stall_s
+    from .nodes.runner import (EXIT_CONFIG, TEARDOWN_CUT, TEARDOWN_S, StallWatch, cut_short_after,
+                               spin_stall_s)
     from .nodes.spin import BackgroundSpinner
     group = ProcessBringUp(args.config, sim=not args.no_sim, nodes=args.nodes, extra_args=extra,
                            manual_lifecycle=args.manual_lifecycle)
@@ -767,9 +767,8 @@ def _run_processes(args: argparse.Namespace, extra: list[str], stop: threading.E
     # first DDS call and re-armed by its main loop: the rival watch's DDS calls in the spinner
     # thread may deadlock holding the interpreter lock; then the main loop stops turning, the
     # kernel ends the bring-up, and its nodes, seeing their parent gone, stop themselves
-    stall_s = spin_stall_s()
-    if stall_s:
-        cut_short_after(stall_s)
+    watch = StallWatch(spin_stall_s())
+    watch.turn()
     helper = rclpy.create_node('brace_bringup')
     log = helper.get_logger()
     # the announcements on a node of their own, spun beside the main thread (which only
@@ -787,11 +786,8 @@ def _run_processes(args: argparse.Namespace, extra: list[str], stop: threading.E
     if args.manual_lifecycle and DRIVER in group.names:
         log.info(_MANUAL_HINT)
     rc = 0
-    armed = -math.inf
     while not stop.wait(0.2):
-        if stall_s and time.monotonic() - armed >= 1.0:
-            cut_short_after(stall_s)
-            armed = time.monotonic()
+        watch.turn()
         dead = group.failed()
         if dead:
             log.error(f'node process(es) ended: {dead}; stopping the others')

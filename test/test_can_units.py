@@ -168,10 +168,9 @@ def test_periodic_loop_keeps_absolute_deadlines():
     # skipped and counted as overruns), whatever the jitter of single cycles: their offset
     # from the grid does not grow (a relative sleep's would, by its latency every tick). The
     # offset itself may be a constant scheduling latency: 0.22 periods beside two busy loops
-    frac = (np.array(ticks) - ticks[0]) / 0.002
-    frac -= np.round(frac)
+    phase = (np.array(ticks) - ticks[0]) / 0.002
+    frac = phase - np.round(phase)
     offset = np.median(frac)
     assert np.median(np.abs(frac - offset)) < 0.1, (offset, frac)
-    phase = (np.array(ticks) - ticks[0]) / 0.002 - offset
-    assert round(phase[-1]) == 199 + rep.overruns
+    assert round(phase[-1] - offset) == 199 + rep.overruns
     assert rep.cycles == 200 and rep.p50 < 0.001

@@ -48,7 +48,8 @@ from .spin import spin_once
 
 __all__ = ['run_node', 'usage', 'make_executor', 'freeze_start_up_heap', 'watch_parent',
            'cut_short_after', 'STOP_SIGNALS', 'PARENT_FD_ENV', 'EXIT_STARTUP', 'EXIT_CONFIG',
-           'TEARDOWN_CUT', 'TEARDOWN_S', 'SPIN_STALL_S', 'SPIN_STALL_ENV', 'SHUTDOWN_S']
+           'StallWatch', 'spin_stall_s', 'TEARDOWN_CUT', 'TEARDOWN_S', 'SPIN_STALL_S',
+           'SPIN_STALL_ENV', 'SHUTDOWN_S']
 
 EXIT_STARTUP = 1
 EXIT_CONFIG = 2
@@ -79,9 +80,9 @@ PARENT_FD_ENV = 'BRACE_PARENT_FD'
 def cut_short_after(seconds: float | None) -> None:
     """From now on this process lives at most ``seconds`` more (``None``: no limit again).
 
-    For the DDS calls after a process's own work, any of which may deadlock inside Fast DDS
-    holding the interpreter lock (eProsima/Fast-DDS#6502), so that no Python code runs again.
-    Two watchdogs that need no GIL: faulthandler's C thread prints every thread's stack on
+    For DDS calls that may deadlock inside Fast DDS holding the interpreter lock
+    (eProsima/Fast-DDS#6502), so that no Python code runs again: a teardown, a shutdown, or
+    (re-armed by :class:`StallWatch`) a loop that must keep turning. Two watchdogs that need no GIL: faulthandler's C thread prints every thread's stack on
     stderr after ``seconds``, and the kernel ends the process half a second later with
     SIGALRM's default action (:data:`TEARDOWN_CUT`, shell status 142). Called again, it
     replaces the limit."""
@@ -92,6 +93,22 @@ def cut_short_after(seconds: float | None) -> None:
     faulthandler.dump_traceback_later(seconds, exit=False)
     signal.signal(signal.SIGALRM, signal.SIG_DFL)
     signal.setitimer(signal.ITIMER_REAL, seconds + 0.5)
+
+
+class StallWatch:
+    """A loop's dead-man's switch: :meth:`turn` once per iteration re-arms
+    :func:`cut_short_after` with ``stall_s`` (at most once a second: each arming starts
+    faulthandler's watchdog thread anew), so the process ends once the loop has not turned
+    for ``stall_s``. ``stall_s`` 0: never (:func:`spin_stall_s`)."""
+
+    def __init__(self, stall_s: float) -> None:
+        self.stall_s = stall_s
+        self._armed = -math.inf
+
+    def turn(self) -> None:
+        if self.stall_s and time.monotonic() - self._armed >= 1.0:
+            cut_short_after(self.stall_s)
+            self._armed = time.monotonic()
 
 
 def spin_stall_s(env: dict[str, str] | None = None) -> float:
@@ -246,13 +263,11 @@ def run_node(factory: Callable[[], Node], *, executable: str, summary: str,
             start(node)
         freeze_start_up_heap()
         spinner.add_node(node)
-        armed = -math.inf
+        watch = StallWatch(stall_s)
         # wake at least every 0.1 s to see a signal (Python runs handlers between bytecodes);
-        # the loop's own dead-man's switch re-armed about once a second (module docstring)
+        # the loop's own dead-man's switch (module docstring)
         while not stop.is_set() and rclpy.ok():
-            if stall_s and time.monotonic() - armed >= 1.0:
-                cut_short_after(stall_s)
-                armed = time.monotonic()
+            watch.turn()
             spin_once(spinner, 0.1)                     # nodes/spin.py
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
