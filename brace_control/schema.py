@@ -150,6 +150,14 @@ SCHEMA: dict[str, Param] = {
                                               'mechanism.singularity_condition_max -> warn', (1e-6, 1.0)),
     'kinetics.ambiguity_check_period': _ro(0.05, 'time between full forward solutions (all assembly '
                                            'modes)', (0.0, 10.0), 's'),
+    'kinetics.rest_period': _ro(0.05, 'at rest (no reading moved beyond kinetics.rest_band_sigmas of '
+                                'its noise since the last estimate) the estimate and its topics are '
+                                'renewed at this period, not on every joint state (0: every joint '
+                                'state)', (0.0, 0.1), 's'),
+    'kinetics.rest_band_sigmas': _ro(5.0, 'a reading has moved when it differs from the one of the last '
+                                     'estimate by more than this many of its standard deviations '
+                                     '(encoder: quantum / sqrt(12); load cell: kinetics.load_cell_noise '
+                                     'with its quantum)', (0.0, 1e3)),
     # trajectory
     'trajectory.rate_hz': _ro(200.0, 'setpoint rate', (1.0, 2000.0), unit='Hz'),
     'trajectory.profile': _ro('minimum_jerk', 'motion profile',

@@ -287,3 +287,64 @@ def test_spherical_covariance_is_about_the_base_frame_axes():
     out = pose_covariance_6x6(pose, cov, mechanism=mech)
     np.testing.assert_allclose(out[3:, 3:], g @ cov @ g.T, rtol=1e-6)
     np.testing.assert_array_equal(np.diag(out)[:3], [1e6] * 3)
+
+
+# ------------------------------------------------------------------ at rest (issue 27)
+REST_PERIOD = float(CFG['kinetics'].get('rest_period', 0.05))
+RES = CFG['actuator']['screw_lead'] / CFG['actuator']['encoder_counts_per_rev']
+
+
+def test_rest_gate_is_due_on_motion_on_a_new_load_and_after_its_period():
+    from brace_control.nodes.kinetics_node import RestGate
+    gate = RestGate(np.full(3, 1e-6), np.full(3, 0.25), 0.05)
+    q, f = np.array([0.37, 0.38, 0.39]), np.array([10.0, -5.0, 3.0])
+    assert gate.due(q, f, 1.0)                                  # nothing taken yet
+    gate.took(q, f, 1.0)
+    assert not gate.due(q, f, 1.01)                             # the same readings
+    assert not gate.due(q + 0.9e-6, f - 0.24, 1.02)             # within the bands
+    assert gate.due(q + [0.0, 1.1e-6, 0.0], f, 1.02)            # one encoder moved
+    assert gate.due(q, f + [0.0, 0.0, 0.26], 1.02)              # one load cell moved
+    assert gate.due(q, None, 1.02)                              # the load cells went silent
+    assert gate.due(q, f, 1.05)                                 # the period is over
+    assert gate.due(q, f, 0.5)                                  # a stamp from before (bag again)
+    assert gate.skipped == 2
+    gate.reset()
+    assert gate.due(q, f, 1.01)
+    assert all(RestGate(np.full(3, 1.0), np.full(3, 1.0), 0.0).due(q, f, t) for t in (1.0, 1.0, 1.001))
+
+
+def test_at_rest_the_estimate_is_renewed_every_rest_period_and_at_once_when_a_reading_moves(rig):
+    """Readings that do not move beyond their noise are not a new pose on every joint state:
+    the newest is estimated and published every kinetics.rest_period, on its stamp. A reading
+    that moves (two encoder counts, a load change) is published with its own stamp at once."""
+    ros, kin, pub, poses, wrenches, _ = rig
+    pose, forces = np.array([0.0, 0.37, 0.17]), np.array([40.0, -25.0, 60.0])
+    q = encoders(pose, forces)
+    rng = np.random.default_rng(27)
+    n = 30
+    for k in range(n):                                          # 0.3 s at 100 Hz, load-cell noise
+        noisy = forces + rng.normal(0.0, CFG['kinetics']['load_cell_noise'], 3)
+        pub.publish(joint_state(NAMES, position=q, effort=noisy, stamp=sec_to_stamp(1 + 0.01 * k)))
+        ros.spin_until(lambda: kin.received == k + 1, what=f'joint state {k}')
+    ros.spin_until(lambda: poses and len(wrenches) == len(poses), what='the poses at rest')
+    stamps = np.array([stamp_to_ns(m.header.stamp) for m in poses]) * 1e-9
+    assert stamps[0] == 1.0
+    gaps = np.diff(stamps)
+    assert np.all(gaps >= REST_PERIOD - 1e-6) and np.all(gaps <= REST_PERIOD + 0.01 + 1e-6), gaps
+    assert len(poses) <= n * 0.01 / REST_PERIOD + 1 < n
+    sigma = np.sqrt(np.diag(expected_covariance(pose, forces)))     # the noise's, through the legs
+    for m in poses:
+        assert np.all(np.abs(planar_pose_from_msg(m) - pose) <= 5.0 * sigma)
+    # two encoder counts on leg 2 (one is within the band: a holding drive dithers by one),
+    # then a 1 N load change on leg 3: each at once, on its stamp
+    moved_q = q + np.array([0.0, 2 * RES, 0.0])
+    pub.publish(joint_state(NAMES, position=moved_q, effort=forces, stamp=sec_to_stamp(1.301)))
+    ros.spin_until(lambda: stamp_to_ns(poses[-1].header.stamp) == 1_301_000_000, what='the moved encoder')
+    loaded = forces + np.array([0.0, 0.0, 1.0])
+    pub.publish(joint_state(NAMES, position=moved_q, effort=loaded, stamp=sec_to_stamp(1.302)))
+    ros.spin_until(lambda: stamp_to_ns(wrenches[-1].header.stamp) == 1_302_000_000, what='the new load')
+    w = wrenches[-1]
+    est = planar_pose_from_msg(poses[-1])
+    np.testing.assert_allclose([w.wrench.force.x, w.wrench.force.y, w.wrench.torque.z],
+                               body_wrench_platform_frame(est, loaded), rtol=1e-6, atol=1e-6)
+    assert kin.rest_gate.skipped >= n - len(stamps)

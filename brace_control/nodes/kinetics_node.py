@@ -21,7 +21,11 @@ quantum, ``kinetics.load_cell_noise`` and ``kinetics.stiffness_rel_std``.
   efforts, W = Jᵀ f, force components rotated into the platform frame, moment about the
   platform origin. SI.
 
-All three carry the joint state's stamp. ``/diagnostics``: the residual (largest, in m or
+All three carry the joint state's stamp. While anything moves they follow every joint state.
+At rest (every reading within ``kinetics.rest_band_sigmas`` of its own noise of the readings of
+the last estimate, and that estimate exact) they are renewed every ``kinetics.rest_period``
+(0.05 s) from the newest joint state: a 100 Hz stream at rest is 20 Hz of the same pose,
+not 100 Hz of the load cells' noise (:class:`RestGate`). ``/diagnostics``: the residual (largest, in m or
 rad and in standard deviations), exact or least squares, cond(J), the pose's standard
 deviations; WARN for a least-squares pose, a step limited by ``kinetics.max_step``, a pose
 near a singularity (cond(J) above ``singularity_warn_fraction`` × ``singularity_condition_max``),
@@ -70,6 +74,49 @@ def platform_frame_wrench(pose: np.ndarray, wrench: np.ndarray, kind: str) -> np
     return out
 
 
+class RestGate:
+    """When a joint state is worth a new estimate: a reading moved beyond its noise since the
+    last estimate, or ``period`` has passed since it (s, on the joint states' stamps).
+
+    :param position_band: per actuator (m or rad): larger encoder changes are motion.
+    :param effort_band: per actuator (N or N·m): larger load-cell changes are a new load.
+    :param period: the longest gap between estimates at rest; 0: every joint state is due.
+
+    The caller says which estimates count as a reference (:meth:`took`) and when the next
+    one must be computed whatever the readings say (:meth:`reset`: an estimate that has not
+    converged yet, a failure). A stamp that goes backwards (a replayed bag started again) is due.
+    """
+
+    def __init__(self, position_band: np.ndarray, effort_band: np.ndarray, period: float) -> None:
+        self.position_band = np.asarray(position_band, float)
+        self.effort_band = np.asarray(effort_band, float)
+        self.period = float(period)
+        self._q: np.ndarray | None = None
+        self._effort: np.ndarray | None = None
+        self._at = -math.inf
+        #: joint states not turned into an estimate (at rest, within ``period``)
+        self.skipped = 0
+
+    def due(self, q: np.ndarray, effort: np.ndarray | None, t: float) -> bool:
+        if self.period <= 0.0 or self._q is None or not self._at <= t < self._at + self.period:
+            return True
+        if (np.abs(q - self._q) > self.position_band).any():
+            return True
+        if (effort is None) != (self._effort is None):
+            return True
+        if effort is not None and (np.abs(effort - self._effort) > self.effort_band).any():
+            return True
+        self.skipped += 1
+        return False
+
+    def took(self, q: np.ndarray, effort: np.ndarray | None, t: float) -> None:
+        """The estimate of these readings at ``t`` is the reference of the next ones."""
+        self._q, self._effort, self._at = q, effort, t
+
+    def reset(self) -> None:
+        self._q = self._effort = None
+
+
 class KineticsNode(Node):
     """The load-aware pose estimate and the statics of the configured mechanism."""
 
@@ -104,6 +151,13 @@ class KineticsNode(Node):
         self.singularity_warn_fraction = float(kin['singularity_warn_fraction'])
         self.ambiguity_check_period = float(kin['ambiguity_check_period'])
         self.unobserved_variance = float(kin['unobserved_variance'])
+        model = self.estimator.model
+        _, resolution = model.arrays(len(self.actuator_names))
+        sigmas = float(kin['rest_band_sigmas'])
+        force_sigma = math.hypot(model.force_noise, model.force_resolution / math.sqrt(12.0))
+        self.rest_gate = RestGate(sigmas * resolution / math.sqrt(12.0),
+                                  np.full(len(self.actuator_names), sigmas * force_sigma),
+                                  float(kin['rest_period']))
         #: the last estimate (pose, covariance, residual, ...), ``None`` before the first
         self.estimate: PoseEstimate | None = None
         self.pose: np.ndarray = np.asarray(self.mechanism.home_pose, dtype=float)
@@ -140,19 +194,28 @@ class KineticsNode(Node):
         if (q < self._q_low).any() or (q > self._q_high).any():
             # e.g. incremental encoders before homing read 0: not a pose, not a fault here
             self.failed += 1
+            self.rest_gate.reset()
             text = (f'joint positions {np.round(q, 4).tolist()} are outside the actuator range '
                     f'(drives not homed?): no pose published')
             self.get_logger().warning(text, throttle_duration_sec=5.0)
             self.diagnostics.set(WARN, text, failed=self.failed)
             return
+        stamp = msg.header.stamp
+        t = stamp.sec + stamp.nanosec * 1e-9 or time.monotonic()
+        if not self.rest_gate.due(q, effort, t):
+            return
         try:
             est = self.estimator.update(q, effort)
             wrench = None if effort is None else self.estimator.wrench(est.pose, effort)
         except ValueError as exc:
+            self.rest_gate.reset()
             self._fail(f'no pose estimate for q = {np.round(q, 6).tolist()}: {exc}')
             return
+        if est.exact and not est.step_limited:
+            self.rest_gate.took(q, effort, t)
+        else:                                   # not converged: the next reading is due
+            self.rest_gate.reset()
         self.estimate, self.pose, self.condition = est, est.pose, est.condition
-        stamp = msg.header.stamp
         self._pose_pub.publish(pose_msg(est.pose, frame_id=self.base_frame, stamp=stamp,
                                         mechanism=self.mechanism))
         self._pose_cov_pub.publish(pose_with_covariance_msg(
@@ -189,6 +252,7 @@ class KineticsNode(Node):
         values['pose'] = est.pose.round(6).tolist()
         values['pose_sigma'] = [float(f'{s:.3g}') for s in np.sqrt(est.covariance.diagonal())]
         values['slack'] = list(est.slack)
+        values['skipped_at_rest'] = self.rest_gate.skipped
         if not est.exact:
             self.diagnostics.set(WARN, (
                 f'least squares: the leg lengths do not close (actuator {self.actuator_names[worst]} '
@@ -213,6 +277,7 @@ class KineticsNode(Node):
 
     def _fail(self, message: str) -> None:
         self.failed += 1
+        self.rest_gate.reset()
         self.get_logger().error(message, throttle_duration_sec=1.0)
         self.diagnostics.set(ERROR, message, failed=self.failed)
 
