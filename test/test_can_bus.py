@@ -1,12 +1,14 @@
 """brace_control.can.bus.VirtualBus against python-can's own VirtualBus (the oracle).
 
 Our bus only replaces the per-receiver frame copy (a field-by-field copy instead of
-``copy.deepcopy``): what every receiver gets must be what python-can's bus gives it, each
+``copy.deepcopy``) and its receive queue (a C queue that shows its oldest frame): what every
+receiver gets must be what python-can's bus gives it, each
 receiver its own frame and its own data, and the two kinds of bus share a channel.
 """
 from __future__ import annotations
 
 import itertools
+import queue
 
 import can
 import pytest
@@ -98,3 +100,39 @@ def test_a_closed_bus_refuses_to_send():
 def test_other_interfaces_are_python_cans_own():
     with pytest.raises((can.CanError, ValueError, ImportError, OSError)):
         open_bus('no_such_interface', 'x')
+
+
+def test_the_receive_queue_shows_its_oldest_frame_until_it_is_received():
+    """What the simulated drives' heartbeat consumer reads (sim/host.py ``_heard_until``):
+    the oldest frame not yet received, in the order sent, from any kind of bus."""
+    channel = f'bus-test-{next(_channels)}'
+    ours = open_bus('virtual', channel)
+    theirs = can.Bus(interface='virtual', channel=channel)
+    try:
+        assert ours.queue.oldest() is None
+        for frame in FRAMES[:3]:
+            theirs.send(frame)
+        ids = []
+        while (head := ours.queue.oldest()) is not None:
+            got = ours.recv(1.0)
+            assert got is head
+            ids.append(got.arbitration_id)
+        assert ids == [f.arbitration_id for f in FRAMES[:3]]
+        assert ours.recv(0.01) is None and ours.queue.oldest() is None
+        theirs.send(FRAMES[1])
+        assert ours.queue.get_nowait().arbitration_id == FRAMES[1].arbitration_id
+        assert ours.queue.oldest() is None
+        with pytest.raises(queue.Empty):
+            ours.queue.get_nowait()
+    finally:
+        ours.shutdown()
+        theirs.shutdown()
+    assert channel not in can.interfaces.virtual.channels     # both queues gone from the registry
+
+
+def test_a_bounded_receive_queue_stays_python_cans():
+    bus = open_bus('virtual', f'bus-test-{next(_channels)}', rx_queue_size=2)
+    try:
+        assert type(bus.queue) is queue.Queue and bus.queue.maxsize == 2
+    finally:
+        bus.shutdown()

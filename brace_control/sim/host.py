@@ -234,8 +234,11 @@ class SimBus:
         q = getattr(self.bus, 'queue', None)
         if q is None:
             return now
-        with q.mutex:
-            head = q.queue[0] if q.queue else None
+        if hasattr(q, 'oldest'):                   # brace_control.can.bus.RxQueue
+            head = q.oldest()
+        else:                                      # python-can's queue.Queue
+            with q.mutex:
+                head = q.queue[0] if q.queue else None
         if head is None:
             return now
         age = min(max(time.time() - head.timestamp, 0.0), 1.0)
