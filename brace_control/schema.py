@@ -315,8 +315,9 @@ SCHEMA: dict[str, Param] = {
                                          'axis', (1e-6, 1e4), 'm/s² or rad/s²'),
     'interaction.goal_rate': _ro([0.0], 'a new wrench goal is tracked as a ramp at this rate per pose axis '
                                  '(0: a step)', (0.0, 1e6), 'N/s or N·m/s'),
-    'interaction.wrench_timeout': _ro(0.1, 'no /brace/wrench for this long -> the mode stops',
-                                      (0.005, 5.0), 's'),
+    'interaction.wrench_timeout': _ro(0.1, 'no effect (kept for older device files): the admittance '
+                                      "reads the drives' load cells in the cycle, a silent one is "
+                                      'stale feedback (docs/interaction.md)', (0.005, 5.0), 's'),
 }
 
 
