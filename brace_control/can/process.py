@@ -101,7 +101,7 @@ class _LinkPickler(pickle.Pickler):
     """The link's pickler: ``multiprocessing``'s ``ForkingPickler`` copies the whole copyreg
     table on every message, and numpy's arrays reduce slowly; a snapshot at 100 Hz costs
     80 us to pickle and 50 us to unpickle that way, 28 and 25 us this way (bench/RESULTS.md,
-    "The link's pickler")."""
+    "The stack as processes at rest and in motion, before and after (8c15928 -> b8f433c)")."""
 
     dispatch_table = {**copyreg.dispatch_table, np.ndarray: _reduce_array}
 

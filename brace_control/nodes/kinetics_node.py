@@ -208,7 +208,6 @@ class KineticsNode(Node):
             est = self.estimator.update(q, effort)
             wrench = None if effort is None else self.estimator.wrench(est.pose, effort)
         except ValueError as exc:
-            self.rest_gate.reset()
             self._fail(f'no pose estimate for q = {np.round(q, 6).tolist()}: {exc}')
             return
         if est.exact and not est.step_limited:
