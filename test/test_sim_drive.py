@@ -411,6 +411,25 @@ def test_master_heartbeat_loss_applies_6007h_quick_stop(rig: Rig) -> None:
     hb.stop()
 
 
+def test_the_heartbeat_consumer_outlives_an_unreadable_receive_queue(rig: Rig, monkeypatch) -> None:
+    """The timer thread judges the consumers; a receive queue it cannot read (another kind
+    of queue, a bug) is logged and judged as all heard, and the thread goes on: a lost
+    master heartbeat is still a quick stop (in fresh-clone work a queue without python-can's
+    mutex ended the thread, and with it every consumer, without a word)."""
+    def unreadable(now: float) -> float:
+        raise AttributeError("'RxQueue' object has no attribute 'mutex'")
+    monkeypatch.setattr(rig.sim.host, '_heard_until', unreadable)
+    node = rig.node(3)
+    node.sdo[0x1016][1].raw = (127 << 16) | 100
+    hb = rig.net.send_periodic(0x77F, b'\x05', 0.02)
+    enable_csp(rig, 3)
+    since = rig.rec.mark()
+    hb.stop()
+    emcy = rig.rec.wait(cob(0x83), since=since, timeout=1.0)[0]
+    assert struct.unpack_from('<H', bytes(emcy.data))[0] == 0x8130
+    assert rig.sim.host._timer.is_alive()
+
+
 def _hold_the_gil(seconds: float) -> float:
     """Stall every thread of this process for about ``seconds``, as a full garbage-collector
     pass does: ``sum`` over a range runs in C and never hands the GIL over. Returns the
