@@ -758,8 +758,8 @@ def _run_processes(args: argparse.Namespace, extra: list[str], stop: threading.E
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
 
-    from .nodes.runner import (EXIT_CONFIG, TEARDOWN_CUT, TEARDOWN_S, StallWatch, cut_short_after,
-                               spin_stall_s)
+    from .nodes.runner import (EXIT_CONFIG, LONG_WORK_S, TEARDOWN_CUT, TEARDOWN_S, StallWatch,
+                               cut_short_after, spin_stall_s)
     from .nodes.spin import BackgroundSpinner
     group = ProcessBringUp(args.config, sim=not args.no_sim, nodes=args.nodes, extra_args=extra,
                            manual_lifecycle=args.manual_lifecycle)
@@ -768,7 +768,10 @@ def _run_processes(args: argparse.Namespace, extra: list[str], stop: threading.E
     # thread may deadlock holding the interpreter lock; then the main loop stops turning, the
     # kernel ends the bring-up, and its nodes, seeing their parent gone, stop themselves
     watch = StallWatch(spin_stall_s())
-    watch.turn()
+    # creating this process's participants up to LONG_WORK_S (on a loaded host the start-up
+    # once took over SPIN_STALL_S: fresh-clone run 210, two busy loops beside); from the
+    # rival watch's start on, whose DDS callbacks may hang holding the lock, SPIN_STALL_S
+    watch.allow(LONG_WORK_S)
     helper = rclpy.create_node('brace_bringup')
     log = helper.get_logger()
     # the announcements on a node of their own, spun beside the main thread (which only
@@ -779,6 +782,7 @@ def _run_processes(args: argparse.Namespace, extra: list[str], stop: threading.E
     rivals = RivalWatch(watcher, group.names, _namespace(extra))
     executor = SingleThreadedExecutor()
     executor.add_node(watcher)
+    watch.rearm()
     spinner: BackgroundSpinner | None = BackgroundSpinner(executor, 'bringup-rivals').start()
     watch_until = time.monotonic() + RIVAL_WATCH_S
     group.start()
@@ -806,6 +810,7 @@ def _run_processes(args: argparse.Namespace, extra: list[str], stop: threading.E
     # of this process runs again, not even the SIGKILL of its nodes. The kernel ends it
     # after SHUTDOWN_DDS_S instead (status 142, its stacks on stderr); its node processes
     # see their parent gone and stop by themselves, each disabling what it drives.
+    StallWatch.active = None                  # nothing extends the shutdown's bound
     cut_short_after(SHUTDOWN_DDS_S)
     if spinner is not None:
         spinner.stop()

@@ -178,3 +178,35 @@ def test_a_spin_stall_limit_that_is_no_number_of_seconds_is_a_configuration_erro
                           text=True, timeout=60, env={**os.environ, SPIN_STALL_ENV: value})
     assert proc.returncode == EXIT_CONFIG, (proc.returncode, proc.stderr[-2000:])
     assert f'{SPIN_STALL_ENV}={value!r}: expected seconds >= 0' in proc.stderr, proc.stderr[-2000:]
+
+
+def test_long_work_is_allowed_only_where_a_watch_runs_and_never_less_than_its_limit(monkeypatch):
+    """allow_long_work: the process's newest StallWatch lets its loop stand still LONG_WORK_S
+    (a driver's configure: the cycle process's start and the boot), re-armed to its limit by
+    a later turn; with no watch (in-process bring-ups, tests, the demo) or a watch that is
+    off (BRACE_SPIN_STALL_S=0) it arms nothing; after a shutdown began, nothing either."""
+    import signal
+
+    from brace_control.nodes import runner
+    monkeypatch.setattr(runner.StallWatch, 'active', None)
+    armed: list = []
+    monkeypatch.setattr(runner, 'cut_short_after', armed.append)
+    runner.allow_long_work()
+    assert armed == [] and signal.getitimer(signal.ITIMER_REAL)[0] == 0.0
+    runner.StallWatch(0.0)
+    runner.allow_long_work()
+    assert armed == []                                   # the watch is off
+    watch = runner.StallWatch(5.0)
+    watch.turn()
+    runner.allow_long_work()
+    runner.allow_long_work(2.0)                          # never less than the watch's limit
+    assert armed == [5.0, runner.LONG_WORK_S, 5.0]
+    watch._armed -= 1.0                                  # the loop turns a second later
+    watch.turn()
+    assert armed[-1] == 5.0 and len(armed) == 4
+    watch.allow(60.0)
+    watch.rearm()                                        # the bring-up's rival watch starts
+    assert armed[-2:] == [60.0, 5.0]
+    runner.StallWatch.active = None                      # run_node's shutdown
+    runner.allow_long_work()
+    assert len(armed) == 6

@@ -153,6 +153,7 @@ from . import topics
 from .msgs import (MalformedMessage, joint_knots_from_msg, joint_state, joint_state_arrays,
                    ns_to_stamp, stamp_to_ns, status_msg)
 from .params import declare_device_parameters
+from .runner import allow_long_work
 from .timers import timer_callback
 
 __all__ = ['CanDriverNode', 'main']
@@ -295,6 +296,7 @@ class CanDriverNode(LifecycleNode):
         open, a drive did not boot or rejected its set-up, a bad simulator parameter): all
         opened is closed again, the cause logged, the node stays unconfigured. ERROR (an
         unexpected exception): logged with its traceback, then :meth:`on_error`."""
+        allow_long_work()         # in the executor's thread: seconds on a loaded host
         with self._transition_lock:
             try:
                 self._open()
@@ -317,6 +319,7 @@ class CanDriverNode(LifecycleNode):
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Accept commands, publish joint states and the simulator's truth. The drives stay
         disabled (``~/home``, ``~/enable``). FAILURE: the bus is not open (not configured)."""
+        allow_long_work()         # in the executor's thread: seconds on a loaded host
         with self._transition_lock:
             if self.master is None:
                 return self._failed('activate', 'the bus is not open (configure first)',
@@ -338,6 +341,7 @@ class CanDriverNode(LifecycleNode):
         stop publishing measurements. FAILURE (still active): a protective stop is latched and
         a drive holds the load (relieve and recover first, or shut down). ERROR: the drives did
         not reach SWITCH ON DISABLED (:meth:`on_error` then powers them off with the bus)."""
+        allow_long_work()         # in the executor's thread: seconds on a loaded host
         with self._transition_lock:
             m = self.master
             if m is None:
@@ -369,6 +373,7 @@ class CanDriverNode(LifecycleNode):
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Close the bus (drives disabled, NMT pre-operational, SYNC stopped), power the
         simulated brace off. SUCCESS: unconfigured."""
+        allow_long_work()         # in the executor's thread: seconds on a loaded host
         with self._transition_lock:
             self._close()
             self._set_lifecycle('unconfigured')

@@ -49,7 +49,7 @@ from .spin import spin_once
 __all__ = ['run_node', 'usage', 'make_executor', 'freeze_start_up_heap', 'watch_parent',
            'cut_short_after', 'STOP_SIGNALS', 'PARENT_FD_ENV', 'EXIT_STARTUP', 'EXIT_CONFIG',
            'StallWatch', 'spin_stall_s', 'TEARDOWN_CUT', 'TEARDOWN_S', 'SPIN_STALL_S',
-           'SPIN_STALL_ENV', 'SHUTDOWN_S']
+           'SPIN_STALL_ENV', 'SHUTDOWN_S', 'LONG_WORK_S', 'allow_long_work']
 
 EXIT_STARTUP = 1
 EXIT_CONFIG = 2
@@ -68,6 +68,9 @@ TEARDOWN_CUT = -signal.SIGALRM
 #: environment variable ``BRACE_SPIN_STALL_S`` sets it (0: never, e.g. under a debugger)
 SPIN_STALL_S = 5.0
 SPIN_STALL_ENV = 'BRACE_SPIN_STALL_S'
+#: s a watched loop may stand still for work known to take long (:func:`allow_long_work`):
+#: longer than the cycle process's start (60 s) and a boot's SDO timeouts on a loaded host
+LONG_WORK_S = 90.0
 #: s the node's own shutdown (the driver: disabling the drives; the trajectory node: its goals
 #: reported) may take before the process ends itself
 SHUTDOWN_S = 15.0
@@ -99,16 +102,47 @@ class StallWatch:
     """A loop's dead-man's switch: :meth:`turn` once per iteration re-arms
     :func:`cut_short_after` with ``stall_s`` (at most once a second: each arming starts
     faulthandler's watchdog thread anew), so the process ends once the loop has not turned
-    for ``stall_s``. ``stall_s`` 0: never (:func:`spin_stall_s`)."""
+    for ``stall_s``. ``stall_s`` 0: never (:func:`spin_stall_s`).
+
+    Work known to take long in the loop's thread (a bring-up's start-up, a driver's lifecycle
+    transition: the cycle process's start and the drives' boot, seconds on a loaded host or a
+    slow bus) first calls :func:`allow_long_work`: the newest watch of the process then
+    allows :data:`LONG_WORK_S` until the loop turns again."""
+
+    #: the newest watch of this process (:func:`allow_long_work` acts on it), if any
+    active: 'StallWatch | None' = None
 
     def __init__(self, stall_s: float) -> None:
         self.stall_s = stall_s
         self._armed = -math.inf
+        StallWatch.active = self
 
     def turn(self) -> None:
         if self.stall_s and time.monotonic() - self._armed >= 1.0:
             cut_short_after(self.stall_s)
             self._armed = time.monotonic()
+
+    def rearm(self) -> None:
+        """``stall_s`` from now, whatever was allowed before (nothing when the watch is off)."""
+        if self.stall_s:
+            cut_short_after(self.stall_s)
+            self._armed = time.monotonic()
+
+    def allow(self, seconds: float) -> None:
+        """The loop may stand still ``seconds`` (at least ``stall_s``) from now; its next
+        turn a second or more later re-arms ``stall_s``. Nothing when the watch is off."""
+        if self.stall_s:
+            cut_short_after(max(seconds, self.stall_s))
+            self._armed = time.monotonic()
+
+
+def allow_long_work(seconds: float | None = None) -> None:
+    """Long work is about to run in the watched loop's thread (:class:`StallWatch`): allow it
+    ``seconds`` (default :data:`LONG_WORK_S`). Nothing in a process without a watch (an
+    in-process bring-up, a test, the demo)."""
+    watch = StallWatch.active
+    if watch is not None:
+        watch.allow(LONG_WORK_S if seconds is None else seconds)
 
 
 def spin_stall_s(env: dict[str, str] | None = None) -> float:
@@ -281,6 +315,7 @@ def run_node(factory: Callable[[], Node], *, executable: str, summary: str,
         if rclpy.ok():
             raise
     finally:
+        StallWatch.active = None           # the shutdown's bound is not extended by its work
         shutdown = getattr(node, 'shutdown', None)
         if callable(shutdown):
             cut_short_after(SHUTDOWN_S)
