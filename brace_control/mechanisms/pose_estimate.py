@@ -150,6 +150,11 @@ class MeasurementModel:
             if arr.ndim != 1 or not np.all(np.isfinite(arr)) or not np.all(arr > 0.0):
                 raise ValueError(f'{name}: expected positive finite numbers, got {getattr(self, name)!r}')
 
+    @property
+    def force_variance(self) -> float:
+        """Variance of one force reading: ``sigma_F^2 + res_F^2 / 12`` ((N or N·m)^2)."""
+        return self.force_noise ** 2 + self.force_resolution ** 2 / 12.0
+
     def arrays(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         """``(k, res)`` broadcast to ``n`` actuators (read-only arrays, built once per ``n``).
 
@@ -189,8 +194,7 @@ class MeasurementModel:
         memo = self.__dict__.setdefault('_reading_var', {})
         if n not in memo:
             k, res = self.arrays(n)
-            var_f = self.force_noise ** 2 + self.force_resolution ** 2 / 12.0
-            reading = res ** 2 / 6.0 + var_f / k ** 2
+            reading = res ** 2 / 6.0 + self.force_variance / k ** 2
             reading.flags.writeable = False
             memo[n] = reading
         return memo[n]
@@ -380,7 +384,7 @@ class PoseEstimator:
         slack: tuple[str, ...] = ()
         if self._cable and fv is not None:
             # a cable with no measurable tension may be slack: L <= q only (no weight)
-            sigma_f = math.sqrt(self.model.force_noise ** 2 + self.model.force_resolution ** 2 / 12.0)
+            sigma_f = math.sqrt(self.model.force_variance)
             loose = fv > -3.0 * sigma_f
             if np.any(loose):
                 var = np.where(loose, np.maximum(var, self._span ** 2), var)

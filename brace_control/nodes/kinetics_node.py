@@ -50,7 +50,7 @@ from ..schema import mechanism_default
 from . import topics
 from .diagnostics import ERROR, OK, WARN, NodeDiagnostics
 from .msgs import (MalformedMessage, joint_state_arrays, pose_kind, pose_msg,
-                   pose_with_covariance_msg, wrench_msg)
+                   pose_with_covariance_msg, stamp_to_sec, wrench_msg)
 from .params import declare_device_parameters
 from .runner import run_node
 
@@ -154,9 +154,8 @@ class KineticsNode(Node):
         model = self.estimator.model
         _, resolution = model.arrays(len(self.actuator_names))
         sigmas = float(kin['rest_band_sigmas'])
-        force_sigma = math.hypot(model.force_noise, model.force_resolution / math.sqrt(12.0))
         self.rest_gate = RestGate(sigmas * resolution / math.sqrt(12.0),
-                                  np.full(len(self.actuator_names), sigmas * force_sigma),
+                                  np.full(len(self.actuator_names), sigmas * math.sqrt(model.force_variance)),
                                   float(kin['rest_period']))
         #: the last estimate (pose, covariance, residual, ...), ``None`` before the first
         self.estimate: PoseEstimate | None = None
@@ -201,7 +200,7 @@ class KineticsNode(Node):
             self.diagnostics.set(WARN, text, failed=self.failed)
             return
         stamp = msg.header.stamp
-        t = stamp.sec + stamp.nanosec * 1e-9 or time.monotonic()
+        t = stamp_to_sec(stamp) or time.monotonic()
         if not self.rest_gate.due(q, effort, t):
             return
         try:

@@ -85,10 +85,10 @@ def cut_short_after(seconds: float | None) -> None:
 
     For DDS calls that may deadlock inside Fast DDS holding the interpreter lock
     (eProsima/Fast-DDS#6502), so that no Python code runs again: a teardown, a shutdown, or
-    (re-armed by :class:`StallWatch`) a loop that must keep turning. Two watchdogs that need no GIL: faulthandler's C thread prints every thread's stack on
-    stderr after ``seconds``, and the kernel ends the process half a second later with
-    SIGALRM's default action (:data:`TEARDOWN_CUT`, shell status 142). Called again, it
-    replaces the limit."""
+    (re-armed by :class:`StallWatch`) a loop that must keep turning. Two watchdogs that need
+    no GIL: faulthandler's C thread prints every thread's stack on stderr after ``seconds``,
+    and the kernel ends the process half a second later with SIGALRM's default action
+    (:data:`TEARDOWN_CUT`, shell status 142). Called again, it replaces the limit."""
     if seconds is None:
         signal.setitimer(signal.ITIMER_REAL, 0.0)
         faulthandler.cancel_dump_traceback_later()
@@ -118,15 +118,12 @@ class StallWatch:
         StallWatch.active = self
 
     def turn(self) -> None:
-        if self.stall_s and time.monotonic() - self._armed >= 1.0:
-            cut_short_after(self.stall_s)
-            self._armed = time.monotonic()
+        if time.monotonic() - self._armed >= 1.0:
+            self.rearm()
 
     def rearm(self) -> None:
         """``stall_s`` from now, whatever was allowed before (nothing when the watch is off)."""
-        if self.stall_s:
-            cut_short_after(self.stall_s)
-            self._armed = time.monotonic()
+        self.allow(self.stall_s)
 
     def allow(self, seconds: float) -> None:
         """The loop may stand still ``seconds`` (at least ``stall_s``) from now; its next
