@@ -106,9 +106,10 @@ class SetpointStream:
             self._accept(sp, executor)
         elif self._was_fresh and (sp is None or t_wake - sp.time > limits.command_timeout):
             self._was_fresh = False
-            self.stale_holds += 1
+            # the warning first: whoever reads a count of stale holds also finds its warning
             life.supervisor.warn('setpoint', 'setpoints stale (none for safety.command_timeout '
                                  f'= {limits.command_timeout * 1e3:.0f} ms): decelerating to rest')
+            self.stale_holds += 1
             executor.stream_stale()
 
     def _accept(self, sp: _Setpoint, executor: PathExecutor) -> None:
