@@ -7,8 +7,9 @@ The device comes up as ``brace-bringup --processes`` does it (each node its own 
 the master's control cycle and the simulated brace in the CAN driver's child process,
 ``can.cycle_process``; ``--in-driver-process``: both inside the driver's process), homed
 and enabled. ``-p name:=value`` overrides a parameter (e.g. ``can.cycle_priority:=0``).
-The driver's cycle process is measured on its own, and split by its threads' names into
-the master's share and the simulated brace's (on hardware, the drives' firmware). Then:
+The driver's cycle process is measured on its own, and split into the simulated brace's
+share (on hardware, the drives' firmware; its own count of its CPU, ``simulator_cpu_s`` in
+the driver's ``/diagnostics``) and the master's (the rest). Then:
 
 * **at rest**: each node process's CPU (user + system, from /proc) over ``--seconds``, in %
   of one core, and their sum;
@@ -83,33 +84,25 @@ def thread_cpu(pid: int) -> dict[str, float]:
     return out
 
 
-#: the cycle process's threads by part: the master's (CAN I/O, SYNC, the link to the node)
-#: and the simulated brace's (on hardware, the drives' firmware)
-PARTS = {'master': ('master-', 'cycle-'), 'simulated brace': ('sim-',)}
-
-
-def part_of(thread: str) -> str:
-    return next((p for p, prefixes in PARTS.items() if thread.startswith(prefixes)), 'other threads')
-
-
-def cpu_share(procs: dict, seconds: float, during=None, split: int | None = None
-              ) -> tuple[dict[str, float], dict[str, float]]:
-    """% of one core per process over ``seconds`` (while ``during(seconds)`` runs), and for
-    the process ``split`` the same per part of its threads (:data:`PARTS`)."""
+def cpu_share(procs: dict, seconds: float, during=None) -> dict[str, float]:
+    """% of one core per process over ``seconds`` (while ``during(seconds)`` runs)."""
     before = {n: cpu_seconds(p.pid) for n, p in procs.items()}
-    threads0 = thread_cpu(split) if split else {}
     t0 = time.monotonic()
     if during is None:
         time.sleep(seconds)
     else:
         during(seconds)
     dt = time.monotonic() - t0
-    shares = {n: 100.0 * (cpu_seconds(p.pid) - before[n]) / dt for n, p in procs.items()}
-    parts: dict[str, float] = {}
-    for name, sec in (thread_cpu(split) if split else {}).items():
-        part = part_of(name)
-        parts[part] = parts.get(part, 0.0) + 100.0 * (sec - threads0.get(name, 0.0)) / dt
-    return shares, parts
+    return {n: 100.0 * (cpu_seconds(p.pid) - before[n]) / dt for n, p in procs.items()}
+
+
+def simulator_share(first: tuple, last: tuple) -> float:
+    """% of one core the simulated brace took between two of the driver's ``/diagnostics``
+    cycle statuses (``(cycles, overruns, simulator_cpu_s, stamp_s)``): its own count of its
+    CPU, in whichever thread ran it (its drives take the master's frames in the master's
+    thread: a split by thread names cannot see it)."""
+    dt = last[3] - first[3]
+    return 100.0 * (last[2] - first[2]) / dt if dt > 0 else math.nan
 
 
 def home_and_enable(node, executor, timeout: float = 60.0) -> None:
@@ -150,7 +143,7 @@ def main(argv=None) -> int:
     lock = threading.Lock()
     ends: dict[str, str] = {}
     started: dict[int, int] = {}
-    cycle: list[tuple[int, int]] = []
+    cycle: list[tuple[int, int, float, float]] = []   # cycles, overruns, simulator_cpu_s, stamp
 
     def on_status(m):
         v = status_values(m)
@@ -168,8 +161,10 @@ def main(argv=None) -> int:
         for st in m.status:
             if st.name.endswith('/cycle'):
                 v = status_values(st)
+                stamp = m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec
                 with lock:
-                    cycle.append((int(v['cycles']), int(v['overruns'])))
+                    cycle.append((int(v['cycles']), int(v['overruns']),
+                                  float(v.get('simulator_cpu_s', 'nan')), stamp))
 
     node.create_subscription(DiagnosticStatus, topics.GOAL_STATUS, on_status, topics.STATUS_QOS)
     node.create_subscription(DiagnosticStatus, topics.EXECUTION_STATUS, on_exec, topics.STATUS_QOS)
@@ -184,15 +179,15 @@ def main(argv=None) -> int:
         cycle_pids = children(driver.pid) if driver is not None else []
         split = None
         if cycle_pids:          # can.cycle_process: the master and the simulator in a child
-            split = cycle_pids[0]
-            procs['cycle process (master + simulated brace)'] = SimpleNamespace(pid=split)
-        else:                   # in the driver's process
-            split = driver.pid if driver is not None else None
+            split = 'cycle process (master + simulated brace)'
+            procs[split] = SimpleNamespace(pid=cycle_pids[0])
+        elif driver is not None:    # in the driver's process
+            split = 'can_driver_node'
         with lock:
-            c_rest0 = cycle[-1] if cycle else (0, 0)
-        rest, rest_parts = cpu_share(procs, args.seconds, split=split)
+            c_rest0 = cycle[-1] if cycle else (0, 0, math.nan, 0.0)
+        rest = cpu_share(procs, args.seconds)
         with lock:
-            c_rest1 = cycle[-1] if cycle else (0, 0)
+            c_rest1 = cycle[-1] if cycle else (0, 0, math.nan, 0.0)
 
         from brace_control.config import load_device_config
         from brace_control.mechanisms import mechanism_from_config
@@ -228,8 +223,8 @@ def main(argv=None) -> int:
                 i += 1
 
         with lock:
-            c0 = cycle[-1] if cycle else (0, 0)
-        moving, moving_parts = cpu_share(procs, args.seconds, during=motion, split=split)
+            c0 = cycle[-1] if cycle else (0, 0, math.nan, 0.0)
+        moving = cpu_share(procs, args.seconds, during=motion)
         time.sleep(1.2)
         with lock:
             c1 = cycle[-1]
@@ -270,13 +265,15 @@ def main(argv=None) -> int:
     for n in rest:
         print(f'| {n} | {rest[n]:.1f} | {moving[n]:.1f} |')
     print(f'| **all** | **{sum(rest.values()):.1f}** | **{sum(moving.values()):.1f}** |\n')
-    where = 'cycle process' if cycle_pids else 'can_driver_node'
-    print(f'{where} by thread (OS thread names; threads without one: other):\n')
-    print('| part | CPU at rest | CPU in motion |')
-    print('|---|---:|---:|')
-    for part in sorted(set(rest_parts) | set(moving_parts)):
-        print(f'| {part} | {rest_parts.get(part, 0.0):.1f} | {moving_parts.get(part, 0.0):.1f} |')
-    print()
+    if split is not None:
+        sim_rest, sim_moving = simulator_share(c_rest0, c_rest1), simulator_share(c0, c1)
+        print(f'{split} split: the simulated brace\'s own count of its CPU (``simulator_cpu_s``, '
+              'driver /diagnostics, between the statuses nearest each window), the master the rest:\n')
+        print('| part | CPU at rest | CPU in motion |')
+        print('|---|---:|---:|')
+        print(f'| master | {rest[split] - sim_rest:.1f} | {moving[split] - sim_moving:.1f} |')
+        print(f'| simulated brace | {sim_rest:.1f} | {sim_moving:.1f} |')
+        print()
     rc, ro = c_rest1[0] - c_rest0[0], c_rest1[1] - c_rest0[1]
     print(f'SYNC cycles at rest: {rc}, overruns {ro} ({100.0 * ro / max(rc, 1):.2f} %); '
           f'in motion: {cycles}, overruns {overruns} ({100.0 * overruns / max(cycles, 1):.2f} %).\n')

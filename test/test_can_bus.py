@@ -1,14 +1,17 @@
 """brace_control.can.bus.VirtualBus against python-can's own VirtualBus (the oracle).
 
 Our bus only replaces the per-receiver frame copy (a field-by-field copy instead of
-``copy.deepcopy``) and its receive queue (a C queue that shows its oldest frame): what every
-receiver gets must be what python-can's bus gives it, each
-receiver its own frame and its own data, and the two kinds of bus share a channel.
+``copy.deepcopy``) and its receive queue (a C queue that shows its oldest frame, or a
+receiver called in the sender's thread): what every receiver gets must be what python-can's
+bus gives it, each receiver its own frame and its own data, and the two kinds of bus share a
+channel.
 """
 from __future__ import annotations
 
 import itertools
 import queue
+import threading
+import time
 
 import can
 import pytest
@@ -136,3 +139,73 @@ def test_a_bounded_receive_queue_stays_python_cans():
         assert type(bus.queue) is queue.Queue and bus.queue.maxsize == 2
     finally:
         bus.shutdown()
+
+
+def test_an_inline_receiver_gets_every_frame_in_the_senders_thread_as_a_queue_would():
+    """receive_inline (the simulated drives, sim/host.py): each frame reaches the handler
+    before ``send`` returns, in the sender's thread, with what python-can's own receiver on
+    the channel gets; ``recv`` then finds nothing, and a closed bus leaves the channel."""
+    channel = f'bus-test-{next(_channels)}'
+    ours = open_bus('virtual', channel)
+    theirs = can.Bus(interface='virtual', channel=channel)
+    witness = can.Bus(interface='virtual', channel=channel)
+    got: list[tuple[int, can.Message]] = []
+    try:
+        assert ours.receive_inline(lambda m: got.append((threading.get_ident(), m)))
+        for i, frame in enumerate(FRAMES):
+            theirs.send(frame)
+            assert len(got) == i + 1                           # before send returned
+        for thread, m in got:
+            assert thread == threading.get_ident()
+            expected = witness.recv(1.0)
+            assert {f: getattr(m, f) for f in FIELDS} == {f: getattr(expected, f) for f in FIELDS}
+        t0 = time.monotonic()
+        assert ours.recv(0.05) is None and time.monotonic() - t0 >= 0.04
+        assert ours.queue.oldest() is None
+    finally:
+        ours.shutdown()
+    theirs.send(FRAMES[1])
+    assert len(got) == len(FRAMES)                              # no longer on the channel
+    theirs.shutdown()
+    witness.shutdown()
+    assert channel not in can.interfaces.virtual.channels
+
+
+def test_a_second_inline_receiver_on_a_channel_is_refused_and_keeps_its_queue():
+    """Two inline receivers would call into each other, each holding its own locks: the
+    second one stays a queue (its owner starts a receive thread)."""
+    channel = f'bus-test-{next(_channels)}'
+    first, second = open_bus('virtual', channel), open_bus('virtual', channel)
+    sender = can.Bus(interface='virtual', channel=channel)
+    got = []
+    try:
+        assert first.receive_inline(got.append)
+        assert not second.receive_inline(got.append)
+        sender.send(FRAMES[1])
+        assert len(got) == 1
+        assert second.recv(1.0).arbitration_id == FRAMES[1].arbitration_id
+    finally:
+        for b in (first, second, sender):
+            b.shutdown()
+
+
+def test_an_inline_receivers_failure_is_logged_not_raised_into_the_sender(caplog):
+    channel = f'bus-test-{next(_channels)}'
+    ours = open_bus('virtual', channel)
+    sender = can.Bus(interface='virtual', channel=channel)
+    got = []
+
+    def handler(m):
+        if m.arbitration_id == 0x80:
+            raise RuntimeError('firmware bug')
+        got.append(m.arbitration_id)
+    try:
+        ours.receive_inline(handler)
+        with caplog.at_level('ERROR', logger='brace_control.can.bus'):
+            sender.send(FRAMES[0])                  # 0x80: raises inside the receiver
+        assert 'inline receiver failed on frame 080h' in caplog.text
+        sender.send(FRAMES[1])
+        assert got == [FRAMES[1].arbitration_id]
+    finally:
+        ours.shutdown()
+        sender.shutdown()

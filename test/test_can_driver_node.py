@@ -111,6 +111,10 @@ def test_services_joint_states_and_setpoints(ros, driver):
     drive = next(s for d in diags for s in d.status if s.name.endswith('/drive/a2'))
     keys = {kv.key for kv in drive.values}
     assert {'nmt', 'state_402', 'last_emcy', 'heartbeat_age_s'} <= keys
+    # the simulated brace's own count of its CPU (bench_stack's split of the cycle's process)
+    cpu = [float(kv.value) for d in diags for s in d.status if s.name.endswith('/cycle')
+           for kv in s.values if kv.key == 'simulator_cpu_s']
+    assert cpu and cpu[-1] > 0.0
 
     for name in ('halt', 'recover', 'disable'):
         res = call(ros, probe, f'/can_driver_node/{name}')

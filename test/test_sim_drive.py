@@ -26,7 +26,7 @@ import pytest
 import yaml
 
 from brace_control.can.plan import pdo_mapping_writes
-from brace_control.sim import SimulatedBrace
+from brace_control.sim import SimBus, SimulatedBrace
 from brace_control.sim.drive import DriveLimits, SimulatedDrive
 from drive_frames import FrameMaster
 
@@ -82,13 +82,15 @@ def wait_until(cond: Callable[[], bool], timeout: float = 2.0) -> None:
 class Rig:
     """canopen master + recorder on a fresh channel, then the simulated brace (boots)."""
 
-    def __init__(self, name: str) -> None:
+    def __init__(self, name: str, *, inline: bool = True) -> None:
         self.channel = f'simtest-{os.getpid()}-{next(_ids)}-{name}'
         self.net = canopen.Network()
         self.net.connect(interface='virtual', channel=self.channel)
         self.rec = Recorder()
         self.net.notifier.add_listener(self.rec)
-        self.sim = SimulatedBrace(CFG, channel=self.channel)
+        self.sim = SimulatedBrace(CFG, channel=self.channel, start=False)
+        self.sim.host.inline = inline        # False: a receive thread, as on other interfaces
+        self.sim.start()
         self.nodes: dict[int, canopen.BaseNode402] = {}
 
     def node(self, node_id: int) -> canopen.BaseNode402:
@@ -125,6 +127,16 @@ class Rig:
 @pytest.fixture
 def rig(request: pytest.FixtureRequest):
     r = Rig(request.node.name)
+    yield r
+    r.close()
+
+
+@pytest.fixture
+def queued_rig(request: pytest.FixtureRequest):
+    """The drives receive from a queue, in a thread of their own (sim/host.py: an interface
+    other than ``virtual``, or a second simulator on the channel)."""
+    r = Rig(request.node.name, inline=False)
+    assert r.sim.host._notifier is not None
     yield r
     r.close()
 
@@ -506,16 +518,16 @@ def test_a_stall_in_the_middle_of_the_simulators_timer_work_is_a_stall_too(
     assert node.sdo[0x6041].raw & 0x6F == 0x27            # still OPERATION ENABLED
 
 
-def test_frames_queued_behind_a_busy_simulator_thread_are_not_silence(rig: Rig) -> None:
+def test_frames_queued_behind_a_busy_simulator_thread_are_not_silence(queued_rig: Rig) -> None:
     """The simulator's receive thread busy for 3x the consumer time (here: its SYNC handler
     sleeps 0.3 s, the GIL free, the timer thread on time) while the master's heartbeats keep
     arriving in its queue: the drive does not call that silence (sim/host.py), and a master
     that really falls silent is still caught (test above)."""
-    node = rig.node(3)
+    node = queued_rig.node(3)
     node.sdo[0x1016][1].raw = (127 << 16) | 100           # consumer time 100 ms
-    hb = rig.net.send_periodic(0x77F, b'\x05', 0.02)
-    enable_csp(rig, 3)
-    handler = rig.sim.host.sync_handler
+    hb = queued_rig.net.send_periodic(0x77F, b'\x05', 0.02)
+    enable_csp(queued_rig, 3)
+    handler = queued_rig.sim.host.sync_handler
     busy, done = threading.Event(), threading.Event()
 
     def slow_sync(dt: float) -> None:
@@ -524,18 +536,48 @@ def test_frames_queued_behind_a_busy_simulator_thread_are_not_silence(rig: Rig) 
         handler(dt)
         done.set()
 
-    since = rig.rec.mark()
-    rig.sim.host.sync_handler = slow_sync
+    since = queued_rig.rec.mark()
+    queued_rig.sim.host.sync_handler = slow_sync
     try:
-        rig.net.send_message(0x80, b'')
+        queued_rig.net.send_message(0x80, b'')
         assert busy.wait(1.0) and done.wait(2.0)
     finally:
-        rig.sim.host.sync_handler = handler
-    rig.rec.wait(cob(0x703), since=rig.rec.mark(), count=3)
+        queued_rig.sim.host.sync_handler = handler
+    queued_rig.rec.wait(cob(0x703), since=queued_rig.rec.mark(), count=3)
     hb.stop()
-    assert not rig.sim.drive(3).master_heartbeat_lost
-    assert not rig.rec.wait(cob(0x83), since=since, count=0), 'EMCY sent'
+    assert not queued_rig.sim.drive(3).master_heartbeat_lost
+    assert not queued_rig.rec.wait(cob(0x83), since=since, count=0), 'EMCY sent'
     assert node.sdo[0x6041].raw & 0x6F == 0x27            # still OPERATION ENABLED
+
+
+def test_the_drives_answer_a_sync_before_its_send_returns_and_count_their_cpu(rig: Rig) -> None:
+    """On the virtual bus the drives take a frame in its sender's thread (sim/host.py): the
+    SYNC is handled, its TPDO1 queued for the master, when ``send`` returns, with no thread of
+    the simulator to wake; the CPU it took is counted (``cpu_seconds``)."""
+    assert rig.sim.host._notifier is None
+    enable_csp(rig, 3)
+    for _ in range(20):
+        count, cpu = rig.sim.host.sync_count, rig.sim.cpu_seconds
+        rig.net.send_message(0x80, b'')
+        assert rig.sim.host.sync_count == count + 1
+        assert rig.sim.cpu_seconds > cpu
+    since = rig.rec.mark()
+    rig.sync(1, tpdo_from=(3,))
+    assert rig.rec.wait(cob(0x183), since=since)
+
+
+def test_a_second_simulator_on_the_channel_receives_in_a_thread_of_its_own(rig: Rig) -> None:
+    """Two simulators taking frames in the sender's thread would call into each other: the
+    second one on a channel gets a receive thread, and both answer."""
+    other = SimBus(rig.channel)
+    other.start()
+    try:
+        assert rig.sim.host._notifier is None and other._notifier is not None
+        count = other.sync_count
+        rig.net.send_message(0x80, b'')
+        wait_until(lambda: other.sync_count == count + 1)
+    finally:
+        other.shutdown()
 
 
 # ---------------------------------------------------------------- fault injection

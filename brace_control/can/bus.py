@@ -15,20 +15,30 @@ condition variable and three locks): a frame's put and get cost ~0.3 us instead 
 twice per frame at 2000 frames/s at rest. It is python-can's class otherwise: the same
 channel registry, so its frames reach plain ``can.Bus(interface='virtual')`` buses on the
 channel and theirs reach it.
+
+A receiver may instead take each frame in its sender's thread
+(:meth:`VirtualBus.receive_inline`, :class:`InlineDelivery`): the simulated drives do, as a
+frame reaches a real drive while it crosses the wire, without a receive thread to wake for
+every SYNC and RPDO (bench/RESULTS.md).
 Every other interface (``socketcan``, ``pcan``, ...) is opened by :class:`can.Bus` itself.
 """
 from __future__ import annotations
 
 import collections
+import logging
 import queue
+import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 import can
 import can.interfaces.virtual as _virtual
 from can.interfaces.virtual import VirtualBus as _PythonCanVirtualBus
 
-__all__ = ['RxQueue', 'VirtualBus', 'open_bus']
+__all__ = ['InlineDelivery', 'RxQueue', 'VirtualBus', 'open_bus']
+
+log = logging.getLogger(__name__)
 
 
 class RxQueue(queue.SimpleQueue):
@@ -64,6 +74,49 @@ class RxQueue(queue.SimpleQueue):
             return None
 
 
+class InlineDelivery:
+    """A virtual bus's receive side that hands each frame to its receiver in the sender's
+    thread, in place of a queue and a thread that takes from it (:meth:`VirtualBus.receive_inline`).
+
+    A receiver's exception is logged, never raised into the sender (a drive's firmware fault
+    does not reach the master's ``send``). Nothing waits in it: :meth:`oldest` is ``None`` and
+    :meth:`get` finds nothing (after ``timeout``).
+    """
+
+    def __init__(self, handler: Callable[[can.Message], None]) -> None:
+        self._handler = handler
+        self._closed = threading.Event()
+
+    def put(self, item: can.Message, block: bool = True, timeout: float | None = None) -> None:
+        try:
+            self._handler(item)
+        except Exception:  # noqa: BLE001 - the sender is another node
+            log.exception('inline receiver failed on frame %03Xh', item.arbitration_id)
+
+    def put_nowait(self, item: can.Message) -> None:
+        self.put(item)
+
+    def get(self, block: bool = True, timeout: float | None = None) -> can.Message:
+        if block:
+            self._closed.wait(timeout)
+        raise queue.Empty
+
+    def get_nowait(self) -> can.Message:
+        raise queue.Empty
+
+    def oldest(self) -> None:
+        return None
+
+    def qsize(self) -> int:
+        return 0
+
+    def empty(self) -> bool:
+        return True
+
+    def close(self) -> None:
+        self._closed.set()
+
+
 class VirtualBus(_PythonCanVirtualBus):
     """python-can's virtual bus with a field-by-field frame copy and a C receive queue
     (module docstring)."""
@@ -81,6 +134,29 @@ class VirtualBus(_PythonCanVirtualBus):
                 fast.put(old.get_nowait())
             except queue.Empty:
                 break
+
+    def receive_inline(self, handler: Callable[[can.Message], None]) -> bool:
+        """Hand every frame sent to this bus to ``handler`` in the sender's thread
+        (:class:`InlineDelivery`) instead of queueing it for :meth:`recv`; ``False`` (and
+        nothing changed) when another bus on the channel already receives inline: two such
+        receivers would call into each other, each holding its own locks."""
+        with _virtual.channels_lock:
+            if any(isinstance(q, InlineDelivery) for q in self.channel):
+                return False
+            old, inline = self.queue, InlineDelivery(handler)
+            self.channel[self.channel.index(old)] = inline
+            self.queue = inline  # type: ignore[assignment]
+        while True:                      # a frame put meanwhile is delivered, in order
+            try:
+                inline.put(old.get_nowait())
+            except queue.Empty:
+                break
+        return True
+
+    def shutdown(self) -> None:
+        if isinstance(self.queue, InlineDelivery):
+            self.queue.close()
+        super().shutdown()
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         self._check_if_open()

@@ -618,7 +618,8 @@ def label_threads(master: Any) -> None:
     """Name this process's OS threads after their job (``/proc/<pid>/task/*/comm``: ``top
     -H``, ``ps -L``, bench_stack's split of the master's CPU from the simulator's): the
     master's SYNC thread ``master-sync`` and receive thread ``master-rx``; any other
-    python-can receive thread is the simulated brace's ``sim-rx``; its clock ``sim-timer``."""
+    python-can receive thread is the simulated brace's ``sim-rx`` (on the virtual bus it has
+    none: its drives take frames in the sender's thread); its clock ``sim-timer``."""
     import can
     master_rx = getattr(getattr(master, 'network', None), 'notifier', None)
     for t in threading.enumerate():

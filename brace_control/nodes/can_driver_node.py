@@ -80,7 +80,8 @@ When active:
   and holds (its trajectory reported stopped with the leg, the force and the wrench capacity
   at that pose); nothing latches. ``safety.force_limit`` latches a protective stop;
 * ``/diagnostics``: one status per drive (NMT, 402 state, last EMCY, heartbeat age),
-  the bus (load, error state) and the SYNC cycle (period error p50/p99, overruns);
+  the bus (load, error state) and the SYNC cycle (period error p50/p99, overruns; with
+  ``can.sim``, ``simulator_cpu_s``: the CPU seconds the simulated brace took so far);
 * reports the platform-wrench tiers the master runs in its SYNC cycle
   (:mod:`brace_control.safety`): beyond ``safety.max_wrench`` a protective stop
   (docs/safety.md §8), a motion heading past it braked (§14).
@@ -986,10 +987,17 @@ class CanDriverNode(LifecycleNode):
                "every object of docs/can.md written", **{f'skip_{i + 1}': line for i, line in enumerate(report)})
         t = st.timing
         overrun_frac = t.overrun_fraction
+        sim_cpu = {}
+        if self.sim is not None:            # its share of the CPU where it runs (bench_stack)
+            try:
+                sim_cpu['simulator_cpu_s'] = f'{float(self.sim.cpu_seconds):.3f}'
+            except DriverError:
+                pass
         status('cycle', 'warn' if overrun_frac > 1e-3 else 'ok',
                f'SYNC {self.master_config.sync_rate_hz:g} Hz, period error p99 {t.p99 * 1e6:.0f} us',
                period_error_p50_us=f'{t.p50 * 1e6:.0f}', period_error_p99_us=f'{t.p99 * 1e6:.0f}',
-               period_error_max_us=f'{t.max * 1e6:.0f}', overruns=t.overruns, cycles=t.cycles)
+               period_error_max_us=f'{t.max * 1e6:.0f}', overruns=t.overruns, cycles=t.cycles,
+               **sim_cpu)
         if st.faults:
             level, message = 'error', f'protective stop: {st.faults[0].describe()}'
         elif st.warnings:

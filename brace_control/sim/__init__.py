@@ -7,7 +7,8 @@
 
 * :class:`SimulatedBrace` (:mod:`.brace`): all drives + physics, driven by the master's SYNC.
 * :class:`SimulatedDrive` (:mod:`.drive`): one CiA 402 drive (transport-free).
-* :class:`SimBus` (:mod:`.host`): drives on a python-can bus (Notifier + timer thread).
+* :class:`SimBus` (:mod:`.host`): drives on a python-can bus (on ``virtual`` they take a
+  frame in its sender's thread, elsewhere from a Notifier; one timer thread).
 * :class:`FaultInjector` (:mod:`.faults`): ``SimulatedBrace.faults``.
 
 The contract with the master is docs/can.md.

@@ -387,6 +387,12 @@ class SimulatedBrace:
         """The simulated drive with this node id."""
         return self.host.drive(node_id)
 
+    @property
+    def cpu_seconds(self) -> float:
+        """CPU seconds the simulated brace took so far, in whichever thread ran it
+        (:attr:`SimBus.cpu_seconds <brace_control.sim.host.SimBus.cpu_seconds>`)."""
+        return self.host.cpu_seconds
+
     # ------------------------------------------------------------------ ground truth
 
     def truth(self) -> BraceTruth:

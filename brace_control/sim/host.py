@@ -1,11 +1,23 @@
-"""Simulated drives on a python-can bus: one bus object, one Notifier, one timer thread.
+"""Simulated drives on a python-can bus: one bus object, one timer thread.
 
 :class:`SimBus` owns its own python-can bus object on the master's channel (python-can
-``virtual`` buses on the same channel in one process see each other's frames), receives
-with a :class:`can.Notifier` and dispatches: SYNC to the SYNC handler (a
+``virtual`` buses on the same channel in one process see each other's frames) and
+dispatches what it receives: SYNC to the SYNC handler (a
 :class:`~brace_control.sim.brace.SimulatedBrace`, or each drive), everything else to
 every drive's :meth:`~brace_control.sim.drive.SimulatedDrive.on_frame`. A single timer
 thread runs the drives' heartbeats, heartbeat-consumer timeouts and TPDO event timers.
+
+How it receives: on the ``virtual`` interface, in the sender's thread
+(:meth:`brace_control.can.bus.VirtualBus.receive_inline`). A frame reaches the drives as it
+is sent, as on a wire: the master's SYNC is answered (motion, physics, the TPDOs queued for
+the master) before its ``send`` returns, with no thread of the simulator to wake and no
+queue to wait in. That halves the thread hand-offs of a SYNC period (bench/RESULTS.md,
+"The simulated drives take their frames in the sender's thread"). The master stamps a
+SYNC before sending it (:meth:`brace_control.can.sync.SyncClock.stamp`), so its answers
+arriving early is no problem. Where that cannot be (another interface; a second simulator
+on the same channel already receiving so: two would call into each other holding their
+own locks), a :class:`can.Notifier` thread receives.
+:attr:`SimBus.cpu_seconds` counts the drives' CPU in whichever thread ran them.
 
 Host stalls: the simulated drives run inside the host process. When that process does not
 run at all for a while (a full pass of Python's garbage collector over a large heap, the OS
@@ -17,10 +29,10 @@ stall; the heartbeat consumer time 1016h is twice the master's period), and the 
 their start-up heap out of the collector (:func:`brace_control.nodes.runner.freeze_start_up_heap`).
 A master that stops while this process runs (its thread stuck, the heartbeat silenced) still
 trips the drives on time.
-A frame the master sent that still waits in the simulator's receive queue (its Notifier
-thread busy with the physics of earlier SYNCs) is not silence either: the drives' heartbeat
-consumers judge silence only up to the oldest such frame's send time
-(:meth:`SimBus._heard_until`).
+With a receive thread, a frame the master sent that still waits in the simulator's receive
+queue (that thread busy with the physics of earlier SYNCs) is not silence either: the drives'
+heartbeat consumers judge silence only up to the oldest such frame's send time
+(:meth:`SimBus._heard_until`; received in the sender's thread, nothing waits).
 The other way round, the drives' own heartbeats (1017h) go out from whichever simulator
 thread runs first, the timer or the SYNC handling: a real drive's producer does not wait
 for a host thread, and the master must not see a drive vanish because the simulator's timer
@@ -81,6 +93,14 @@ class SimBus:
         self.sync_handler = sync_handler
         self.dt_source = dt_source
         self._bus_kwargs = bus_kwargs
+        #: on python-can's ``virtual`` interface, the drives take each frame in its sender's
+        #: thread (:meth:`brace_control.can.bus.VirtualBus.receive_inline`, module docstring);
+        #: ``False`` before :meth:`start`: a receive thread, as on any other interface
+        self.inline = True
+        #: CPU seconds the simulated drives took (their frames, their SYNCs, their timers),
+        #: in whichever thread ran them: the simulator's share of its process's CPU
+        self.cpu_seconds = 0.0
+        self._cpu_lock = threading.Lock()     # the timer and the senders' threads add to it
         self.bus: can.BusABC | None = None
         self._notifier: can.Notifier | None = None
         self._timer: threading.Thread | None = None
@@ -124,7 +144,9 @@ class SimBus:
         if self.bus is not None:
             return self
         self.bus = open_bus(self.interface, self.channel, **self._bus_kwargs)
-        self._notifier = can.Notifier(self.bus, [self._on_message], timeout=0.1)
+        receive_inline = getattr(self.bus, 'receive_inline', None)
+        if not (self.inline and receive_inline is not None and receive_inline(self._receive)):
+            self._notifier = can.Notifier(self.bus, [self._receive], timeout=0.1)
         self._stop.clear()
         for d in self.drives:
             d.power_on()
@@ -172,6 +194,18 @@ class SimBus:
 
     # ------------------------------------------------------------------ receive
 
+    def _receive(self, msg: can.Message) -> None:
+        t = time.thread_time()
+        try:
+            self._on_message(msg)
+        finally:
+            self._count_cpu(t)
+
+    def _count_cpu(self, since: float) -> None:
+        spent = time.thread_time() - since
+        with self._cpu_lock:
+            self.cpu_seconds += spent
+
     def _on_message(self, msg: can.Message) -> None:
         if msg.is_error_frame:
             self.error_frames_seen += 1
@@ -218,7 +252,7 @@ class SimBus:
             else:
                 for d in self.drives:
                     d.on_sync(dt)
-        except Exception:   # noqa: BLE001 - never kill the Notifier thread
+        except Exception:   # noqa: BLE001 - never into the sender (or the receive thread)
             log.exception('simulated SYNC handling failed')
         for d in self.drives:             # heartbeats also from here: see the module docstring
             d.heartbeat_due(now)
@@ -253,6 +287,7 @@ class SimBus:
     def _timer_loop(self) -> None:
         expected: float | None = None         # when this thread was due to run again
         while not self._stop.is_set():
+            cpu = time.thread_time()
             now = time.monotonic()
             if expected is not None and now - expected > HOST_STALL_S:
                 # the host process did not run (a garbage-collector pass, the OS scheduler):
@@ -276,6 +311,7 @@ class SimBus:
                 # deadlines were judged at ``now``, before it)
                 self._host_stalled(done - now)
             deadline = max(nxt, done)
+            self._count_cpu(cpu)
             woken = self._wake.wait(max(0.0, deadline - time.monotonic()))
             self._wake.clear()
             expected = min(self._woken_at, deadline) if woken else deadline
