@@ -232,3 +232,28 @@ def test_a_control_cycle_closed_on_purpose_is_no_safety_error(ros, driver):
     safety = [s for s in driver.diagnostics().status if s.name.endswith('/safety')]
     assert len(safety) == 1 and safety[0].level == Status.WARN, safety
     assert 'CAN bus closed' in safety[0].message, safety[0].message
+
+
+def test_the_truth_topics_are_made_only_while_read(ros, driver):
+    """``/brace/sim/*`` are volatile: with no reader nothing is made; a reader of one topic
+    gets that one (its pose the simulator's true pose), the others stay unmade."""
+    from geometry_msgs.msg import PoseStamped
+
+    from brace_control.nodes import topics
+    made = [0, 0, 0, 0]                  # joint states, pose, wrench, body pose
+    for i, pub in enumerate(driver._truth_pubs):
+        publish = pub.publish
+
+        def counted(msg, i=i, publish=publish):
+            made[i] += 1
+            publish(msg)
+        pub.publish = counted
+    probe = ros.node('truth_probe')
+    ros.spin_for(0.3)                    # six periods of sim.truth_rate_hz (20 Hz)
+    assert made == [0, 0, 0, 0]
+    poses = ros.collect(probe, PoseStamped, topics.SIM_POSE)
+    ros.spin_until(lambda: len(poses) >= 2, 3.0, '/brace/sim/pose')
+    assert made[1] >= 2 and made[0] == made[2] == made[3] == 0
+    true = driver.sim.truth().pose
+    got = np.array([poses[-1].pose.position.x, poses[-1].pose.position.y])
+    np.testing.assert_allclose(got, true[:2], atol=1e-4)    # the ring at rest: the newest truth

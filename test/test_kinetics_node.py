@@ -348,3 +348,39 @@ def test_at_rest_the_estimate_is_renewed_every_rest_period_and_at_once_when_a_re
     np.testing.assert_allclose([w.wrench.force.x, w.wrench.force.y, w.wrench.torque.z],
                                body_wrench_platform_frame(est, loaded), rtol=1e-6, atol=1e-6)
     assert kin.rest_gate.skipped >= n - len(stamps)
+
+
+def test_a_topic_nobody_reads_is_not_made_and_a_reader_that_joins_gets_the_next(ros):
+    """Volatile outputs are made only while something subscribes them: the estimate (and
+    the wrench the node keeps) follows every joint state either way, and a reader that
+    subscribes later gets the next sample, with the oracle's wrench."""
+    kin = ros.device_node(KineticsNode)
+    test = ros.node('kinetics_lazy')
+    made = {'pose': 0, 'cov': 0, 'wrench': 0}
+    for key, pub in (('pose', kin._pose_pub), ('cov', kin._pose_cov_pub), ('wrench', kin._wrench_pub)):
+        publish = pub.publish
+
+        def counted(msg, key=key, publish=publish):
+            made[key] += 1
+            publish(msg)
+        pub.publish = counted
+    js = test.create_publisher(JointState, '/brace/joint_states', RELIABLE_10)
+    ros.wait_matched(js)
+    pose = np.array([0.0, 0.37, 0.17])
+    for k, forces in enumerate(([40.0, -25.0, 60.0], [30.0, -20.0, 50.0])):
+        js.publish(joint_state(NAMES, position=encoders(pose, forces), effort=forces,
+                               stamp=sec_to_stamp(1.0 + k)))
+        ros.spin_until(lambda k=k: kin.received == k + 1, what=f'joint state {k + 1} taken')
+        np.testing.assert_allclose(kin.pose, pose, atol=1e-9)
+        np.testing.assert_allclose(kin.wrench, body_wrench_platform_frame(pose, forces), atol=1e-9)
+    assert made == {'pose': 0, 'cov': 0, 'wrench': 0}
+    wrenches = ros.collect(test, WrenchStamped, '/brace/wrench')
+    ros.spin_until(lambda: kin._wrench_pub.get_subscription_count() >= 1, what='the reader matched')
+    forces = [20.0, -10.0, 45.0]
+    js.publish(joint_state(NAMES, position=encoders(pose, forces), effort=forces,
+                           stamp=sec_to_stamp(3.0)))
+    ros.spin_until(lambda: wrenches, what='the wrench for the reader that joined')
+    w = wrenches[0]
+    np.testing.assert_allclose([w.wrench.force.x, w.wrench.force.y, w.wrench.torque.z],
+                               body_wrench_platform_frame(pose, forces), atol=1e-9)
+    assert made['wrench'] == 1 and made['pose'] == 0 and made['cov'] == 0

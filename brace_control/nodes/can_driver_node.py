@@ -97,7 +97,8 @@ With ``can.sim: true`` the simulated brace (:mod:`brace_control.sim`) is started
 cycle's process on the same python-can channel before the master boots (a ``virtual`` bus
 only exists inside one process), and its ground truth is published at ``sim.truth_rate_hz``
 (what a user compares an estimator or a controller against; nothing of the stack
-subscribes to it):
+subscribes to it), each topic while something subscribes it (they are volatile: a reader
+gets the next sample either way, and nobody pays for truth nobody reads):
 
 * ``/brace/sim/joint_states`` (``JointState``): the true actuator positions, rates and
   efforts (force N / torque N·m, before load-cell noise and quantisation);
@@ -506,18 +507,27 @@ class CanDriverNode(LifecycleNode):
             sim = self.sim
             if not self.context.ok() or sim is None or not self._active:
                 return                    # shutting down / closed: the publishers are going
+            # volatile topics: a message nobody reads is not made (a reader that matches gets
+            # the next one, as it would anyway)
+            js_pub, pose_pub, wrench_pub, body_pub = self._truth_pubs
+            wanted = [p.get_subscription_count() > 0 for p in self._truth_pubs]
+            if not any(wanted):
+                return
             # the truth of the SYNC the last /brace/joint_states described (same stamp): a
             # comparison with the estimate pairs the same instant, not two SYNCs ms apart
             truth = sync_truth(sim, self._last_js_wall)
             stamp = ns_to_stamp(round(truth.stamp * 1e9) if truth.stamp else
                                 self.get_clock().now().nanoseconds)
-            js_pub, pose_pub, wrench_pub, body_pub = self._truth_pubs
-            js_pub.publish(joint_state(self.names, position=truth.lengths, velocity=truth.velocities,
-                                       effort=truth.forces, stamp=stamp))
-            pose_pub.publish(pose_msg(truth.pose, frame_id=base, stamp=stamp, mechanism=self.mechanism))
-            if truth.body_pose is not None:
+            if wanted[0]:
+                js_pub.publish(joint_state(self.names, position=truth.lengths,
+                                           velocity=truth.velocities, effort=truth.forces, stamp=stamp))
+            if wanted[1]:
+                pose_pub.publish(pose_msg(truth.pose, frame_id=base, stamp=stamp, mechanism=self.mechanism))
+            if wanted[3] and truth.body_pose is not None:
                 body_pub.publish(pose_msg(truth.body_pose, frame_id=base, stamp=stamp,
                                           mechanism=self.mechanism))
+            if not wanted[2]:
+                return
             # a pure function of (pose, efforts), which at rest repeat bit for bit: computed
             # again only when they changed
             key = (truth.pose.tobytes(), truth.forces.tobytes())

@@ -25,7 +25,9 @@ All three carry the joint state's stamp. While anything moves they follow every 
 At rest (every reading within ``kinetics.rest_band_sigmas`` of its own noise of the readings of
 the last estimate, and that estimate exact) they are renewed every ``kinetics.rest_period``
 (0.05 s) from the newest joint state: a 100 Hz stream at rest is 20 Hz of the same pose,
-not 100 Hz of the load cells' noise (:class:`RestGate`). ``/diagnostics``: the residual (largest, in m or
+not 100 Hz of the load cells' noise (:class:`RestGate`). Each topic is made and published
+only while something subscribes it (volatile topics: a reader that matches gets the next
+sample either way); the estimate itself is kept up to date regardless. ``/diagnostics``: the residual (largest, in m or
 rad and in standard deviations), exact or least squares, cond(J), the pose's standard
 deviations; WARN for a least-squares pose, a step limited by ``kinetics.max_step``, a pose
 near a singularity (cond(J) above ``singularity_warn_fraction`` × ``singularity_condition_max``),
@@ -214,15 +216,20 @@ class KineticsNode(Node):
         else:                                   # not converged: the next reading is due
             self.rest_gate.reset()
         self.estimate, self.pose, self.condition = est, est.pose, est.condition
-        self._pose_pub.publish(pose_msg(est.pose, frame_id=self.base_frame, stamp=stamp,
-                                        mechanism=self.mechanism))
-        self._pose_cov_pub.publish(pose_with_covariance_msg(
-            est.pose, est.covariance, frame_id=self.base_frame, stamp=stamp,
-            mechanism=self.mechanism, unobserved_variance=self.unobserved_variance))
+        # volatile topics: a message nobody reads is not made (a reader that matches gets the
+        # next one, as it would anyway)
+        if self._pose_pub.get_subscription_count():
+            self._pose_pub.publish(pose_msg(est.pose, frame_id=self.base_frame, stamp=stamp,
+                                            mechanism=self.mechanism))
+        if self._pose_cov_pub.get_subscription_count():
+            self._pose_cov_pub.publish(pose_with_covariance_msg(
+                est.pose, est.covariance, frame_id=self.base_frame, stamp=stamp,
+                mechanism=self.mechanism, unobserved_variance=self.unobserved_variance))
         if wrench is not None:
             self.wrench = platform_frame_wrench(est.pose, wrench, self._kind)
-            self._wrench_pub.publish(wrench_msg(self.wrench, frame_id=self.platform_frame,
-                                                stamp=stamp, kind=self._kind))
+            if self._wrench_pub.get_subscription_count():
+                self._wrench_pub.publish(wrench_msg(self.wrench, frame_id=self.platform_frame,
+                                                    stamp=stamp, kind=self._kind))
         self._supervise(est)
 
     def _supervise(self, est: PoseEstimate) -> None:
