@@ -174,3 +174,31 @@ def test_periodic_loop_keeps_absolute_deadlines():
     assert np.median(np.abs(frac - offset)) < 0.1, (offset, frac)
     assert round(phase[-1] - offset) == 199 + rep.overruns
     assert rep.cycles == 200 and rep.p50 < 0.001
+
+
+def test_the_feedbacks_samples_answer_the_newest_sync_every_drive_answered():
+    """Receiver.feedback's pairing (receive._newest_common) against its definition, on random
+    histories: each drive's recent samples in SYNC order (non-decreasing SYNC numbers, some
+    SYNCs missed, a few answered twice); the samples of the largest SYNC number all of them
+    hold, each drive's newest of that number; none when they hold none in common."""
+    from brace_control.can.receive import _newest_common
+    from brace_control.can.supervision import Sample
+    rng = np.random.default_rng(7)
+    for trial in range(3000):
+        drives = int(rng.integers(1, 5))
+        start = int(rng.integers(0, 4))
+        recent = []
+        for d in range(drives):
+            k, r = start, []
+            for _ in range(int(rng.integers(1, 17))):
+                k += int(rng.choice([0, 1, 1, 1, 1, 2, 3]))     # twice, next, or missed ones
+                r.append(Sample(0, float(len(r)), 0.0, 0, k, float(d)))
+            recent.append(tuple(r))
+        common = set.intersection(*({s.sync_index for s in r} for r in recent))
+        got = _newest_common(recent)
+        if not common:
+            assert got is None, trial
+            continue
+        k = max(common)
+        expected = [[s for s in r if s.sync_index == k][-1] for r in recent]
+        assert got is not None and all(a is b for a, b in zip(got, expected)), trial

@@ -259,3 +259,38 @@ def test_the_links_pickler_gives_back_every_array_as_it_was(array):
             assert np.array_equal(np.signbit(back), np.signbit(array))
         assert back.flags.writeable
     assert got.position is got.velocity                      # one object stays one object
+
+
+def test_the_snapshots_dataclasses_cross_as_records_with_every_field():
+    """Snapshot, Feedback and the simulator's BraceTruth go as their constructor and values
+    (process.send_as_record): every field comes back equal (arrays by value), and a class
+    whose fields are not all constructor arguments is refused."""
+    import dataclasses
+
+    from brace_control.can.cia402 import State402
+    from brace_control.can.process import Snapshot, link_dumps, link_loads, send_as_record
+    from brace_control.can.state import Feedback
+    from brace_control.control.execution import ExecutionEvent, ExecutionState
+    from brace_control.sim.brace import BraceTruth
+    send_as_record(BraceTruth)
+    v = np.array([0.1, -0.0, 0.3])
+    truth = BraceTruth(*[v + i if f.type != 'int' else i for i, f in enumerate(dataclasses.fields(BraceTruth))])
+    fb = Feedback(v, v * 2, v * 3, (State402.OPERATION_ENABLED,) * 3, 12.5, True, 1.7e9)
+    snap = Snapshot(MasterState.ENABLED, True, False, False, (), False, '', ExecutionState.HOLD,
+                    (0.3, 0.4), True, v.copy(), fb, (ExecutionEvent(3, 'started', '', (0.1,), 2.0),), truth)
+    back = link_loads(link_dumps(('snap', snap)))[1]
+    for got, sent in ((back, snap), (back.feedback, fb), (back.truth, truth)):
+        assert type(got) is type(sent)
+        for f in dataclasses.fields(sent):
+            a, b = getattr(got, f.name), getattr(sent, f.name)
+            if isinstance(b, np.ndarray):
+                assert np.array_equal(a, b) and np.array_equal(np.signbit(a), np.signbit(b)), f.name
+            elif not dataclasses.is_dataclass(b):
+                assert a == b, f.name
+
+    @dataclasses.dataclass
+    class Derived:
+        a: int
+        b: int = dataclasses.field(init=False, default=0)
+    with pytest.raises(TypeError, match='not an __init__ argument'):
+        send_as_record(Derived)

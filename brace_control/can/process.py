@@ -97,11 +97,33 @@ def _reduce_array(a: np.ndarray) -> tuple[Any, ...]:
     return _array_from, (a.dtype.str, a.shape, a.tobytes())
 
 
+def _reduce_record(obj: Any) -> tuple[Any, ...]:
+    """A dataclass of the snapshot (every field an ``__init__`` argument) as its constructor
+    and its values in order: no field names, no state dictionary to set."""
+    return type(obj), tuple([getattr(obj, name) for name in _RECORD_FIELDS[type(obj)]])
+
+
+#: the snapshot's dataclasses, sent at 100 Hz: their fields in constructor order
+_RECORD_FIELDS: dict[type, tuple[str, ...]] = {}
+
+
+def send_as_record(cls: type) -> type:
+    """Have the link send ``cls`` (a dataclass whose fields are all ``__init__`` arguments)
+    by :func:`_reduce_record`."""
+    fields = dataclasses.fields(cls)
+    if not all(f.init for f in fields):
+        raise TypeError(f'{cls.__name__}: a field that is not an __init__ argument')
+    _RECORD_FIELDS[cls] = tuple(f.name for f in fields)
+    _LinkPickler.dispatch_table[cls] = _reduce_record
+    return cls
+
+
 class _LinkPickler(pickle.Pickler):
     """The link's pickler: ``multiprocessing``'s ``ForkingPickler`` copies the whole copyreg
     table on every message, and numpy's arrays reduce slowly; a snapshot at 100 Hz costs
     80 us to pickle and 50 us to unpickle that way, 28 and 25 us this way (bench/RESULTS.md,
-    "The stack as processes at rest and in motion, before and after (8c15928 -> b8f433c)")."""
+    "The stack as processes at rest and in motion, before and after (8c15928 -> b8f433c)").
+    The snapshot's dataclasses go as records (:func:`send_as_record`)."""
 
     dispatch_table = {**copyreg.dispatch_table, np.ndarray: _reduce_array}
 
@@ -134,6 +156,10 @@ class Snapshot:
     feedback: Feedback
     events: tuple[ExecutionEvent, ...]    # execution events since the previous snapshot
     truth: Any = None                     # the simulator's truth of the feedback's SYNC
+
+
+send_as_record(Snapshot)
+send_as_record(Feedback)
 
 
 def portable(value: Any) -> Any:
@@ -706,6 +732,8 @@ class _Child:
                 sys.setswitchinterval(switch_us * 1e-6)
             if cfg['can']['sim']:
                 from ..sim import SimulatedBrace
+                from ..sim.brace import BraceTruth
+                send_as_record(BraceTruth)      # in every snapshot
                 self.sim = SimulatedBrace(cfg, channel=config.channel, interface=config.interface,
                                           eds=config.eds, mechanism=config.mechanism, start=False)
                 self.sim.start()

@@ -308,10 +308,10 @@ class Receiver:
         drives = self.drives
         recent = [tuple(d.recent) for d in drives]       # C-level copies: the rx thread appends
         samples = [d.sample for d in drives]
-        common = set.intersection(*({s.sync_index for s in r} for r in recent)) if recent and all(recent) else set()
-        if common:
-            k = max(common)
-            samples = [next(s for s in reversed(r) if s.sync_index == k) for r in recent]
+        if recent and all(recent):
+            common = _newest_common(recent)
+            if common is not None:
+                samples = common
         valid = bool(samples) and all(s is not None for s in samples)
         pos = np.array([s.position if s else math.nan for s in samples])
         force = np.array([s.force if s else math.nan for s in samples])
@@ -320,6 +320,30 @@ class Receiver:
         index = max((s.sync_index for s in samples if s), default=-1)
         wall = self.clock.wall_of(index)
         return Feedback(pos, vel, force, tuple(d.state for d in drives), stamp, valid, wall)
+
+
+def _newest_common(recent: list[tuple[Sample, ...]]) -> list[Sample] | None:
+    """Of each drive's recent samples (oldest first), the ones answering the newest SYNC they
+    all answered; ``None`` when they answered none in common. That SYNC is at most the
+    oldest of their newest; when every drive answered that one (a drive that misses none:
+    nearly always) it is found from the end of each, else by intersecting the whole sets."""
+    k = min(r[-1].sync_index for r in recent)
+    found = []
+    for r in recent:
+        for s in reversed(r):
+            if s.sync_index <= k:
+                if s.sync_index == k:
+                    found.append(s)
+                break
+        else:
+            break
+    if len(found) == len(recent):
+        return found
+    common = set.intersection(*({s.sync_index for s in r} for r in recent))
+    if not common:
+        return None
+    k = max(common)
+    return [next(s for s in reversed(r) if s.sync_index == k) for r in recent]
 
 
 class BusListener(can.Listener):
