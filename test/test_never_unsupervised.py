@@ -147,27 +147,42 @@ def test_bringup_ended_mid_motion_ends_every_node_with_the_drives_stopped(ros, t
     stderr. Every node process is gone within NODES_GONE_S of the bring-up's end (the hung
     bring-up: or by its own spin-stall cut, SPIN_STALL_S later), and the
     bus's own log ends with every drive commanded to stop (disable voltage or quick stop) and
-    answering SWITCH ON DISABLED or QUICK STOP ACTIVE."""
+    answering SWITCH ON DISABLED or QUICK STOP ACTIVE. A failure shows the bring-up's stderr."""
+    tag = f'unsup{os.getpid()}x{next(_ids)}'
+    log = tmp_path / 'bus.log'
+    start = ['-m', 'brace_control.bringup'] if sig != 'stuck' else ['-c', _STUCK_DISABLE]
+    # the bring-up's output in files: read on a failure (a pipe nobody reads could also fill
+    # and block the node processes' logging)
+    out_path, err_path = tmp_path / 'bringup.out', tmp_path / 'bringup.err'
+    with open(out_path, 'w') as out, open(err_path, 'w') as err_file:
+        proc = subprocess.Popen(
+            [sys.executable, *start, str(LUMBAR), '--processes', '--ros-args',
+             '-p', f'can.channel:={tag}', '-p', f'can.frame_log:={log}', '-p', 'trajectory.fitts_a:=2.0'],
+            cwd=REPO, stdout=out, stderr=err_file, text=True)
+    try:
+        _run_ended_mid_motion(ros, proc, tag, sig)
+    except (Exception, pytest.fail.Exception) as exc:
+        raise AssertionError(f'{exc}\n--- the bring-up\'s stderr (last 4000 characters):\n'
+                             f'{err_path.read_text()[-4000:]}') from exc
+    if sig == 'stuck':
+        err = err_path.read_text()
+        assert 'the disable call, stuck' in out_path.read_text()
+        assert 'Timeout' in err and '_stuck_disable' in err, err[-3000:]
+    _check_the_drives_stopped_moving(log)
 
+
+def _run_ended_mid_motion(ros, proc: subprocess.Popen, tag: str, sig) -> None:
+    """The bring-up ``proc`` homes, enables and moves; then ``sig`` ends it (``'stuck'``:
+    SIGINT to a bring-up whose driver's disable never returns) and every node is gone in time."""
     import rclpy
+    from diagnostic_msgs.msg import DiagnosticStatus
     from geometry_msgs.msg import PoseStamped
     from rclpy.executors import SingleThreadedExecutor
     from sensor_msgs.msg import JointState
 
-    from diagnostic_msgs.msg import DiagnosticStatus
-
-    from brace_control.bringup import call_trigger, wait_for_links, wait_until_ready
+    from brace_control.bringup import SHUTDOWN_DDS_S, call_trigger, wait_for_links, wait_until_ready
     from brace_control.nodes import topics
-
-    tag = f'unsup{os.getpid()}x{next(_ids)}'
-    log = tmp_path / 'bus.log'
-    from brace_control.bringup import SHUTDOWN_DDS_S
     from brace_control.nodes.runner import SPIN_STALL_S, TEARDOWN_CUT
-    start = ['-m', 'brace_control.bringup'] if sig != 'stuck' else ['-c', _STUCK_DISABLE]
-    proc = subprocess.Popen(
-        [sys.executable, *start, str(LUMBAR), '--processes', '--ros-args',
-         '-p', f'can.channel:={tag}', '-p', f'can.frame_log:={log}', '-p', 'trajectory.fitts_a:=2.0'],
-        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     node = rclpy.create_node(f'probe_{tag}', context=ros.context)
     executor = SingleThreadedExecutor(context=ros.context)
     executor.add_node(node)
@@ -219,10 +234,11 @@ def test_bringup_ended_mid_motion_ends_every_node_with_the_drives_stopped(ros, t
             proc.wait()
         for pid in _node_pids(tag):
             os.kill(pid, signal.SIGKILL)
-    if sig == 'stuck':
-        err = proc.stderr.read()
-        assert 'the disable call, stuck' in proc.stdout.read()
-        assert 'Timeout' in err and '_stuck_disable' in err, err[-3000:]
+
+
+def _check_the_drives_stopped_moving(log) -> None:
+    """The frame log: every drive's last controlword stops it, its last statusword says so,
+    and the targets were changing before (it was moving when the bring-up ended)."""
     frames = list(read_frames(log))
     for node_id in (1, 2, 3):
         rpdo = [bytes(m.data) for m in frames if m.arbitration_id == 0x200 + node_id]
