@@ -125,33 +125,31 @@ class VirtualBus(_PythonCanVirtualBus):
         super().__init__(channel=channel, **kwargs)
         if kwargs.get('rx_queue_size', 0):
             return                       # a bounded queue (drops the oldest): python-can's
-        with _virtual.channels_lock:
-            old, fast = self.queue, RxQueue()
-            self.channel[self.channel.index(old)] = fast
-            self.queue = fast  # type: ignore[assignment]
-        while True:                      # a frame put meanwhile is kept, in order
-            try:
-                fast.put(old.get_nowait())
-            except queue.Empty:
-                break
+        self._take_over_queue(RxQueue())
 
     def receive_inline(self, handler: Callable[[can.Message], None]) -> bool:
         """Hand every frame sent to this bus to ``handler`` in the sender's thread
         (:class:`InlineDelivery`) instead of queueing it for :meth:`recv`; ``False`` (and
         nothing changed) when another bus on the channel already receives inline: two such
         receivers would call into each other, each holding its own locks."""
+        return self._take_over_queue(
+            InlineDelivery(handler),
+            unless=lambda queues: any(isinstance(q, InlineDelivery) for q in queues))
+
+    def _take_over_queue(self, new: Any, unless: Callable[[list[Any]], bool] | None = None) -> bool:
+        """``new`` in place of this bus's receive queue in the channel's registry (not if
+        ``unless(the channel's queues)``); the frames the old one held are put into it."""
         with _virtual.channels_lock:
-            if any(isinstance(q, InlineDelivery) for q in self.channel):
+            if unless is not None and unless(self.channel):
                 return False
-            old, inline = self.queue, InlineDelivery(handler)
-            self.channel[self.channel.index(old)] = inline
-            self.queue = inline  # type: ignore[assignment]
-        while True:                      # a frame put meanwhile is delivered, in order
+            old = self.queue
+            self.channel[self.channel.index(old)] = new
+            self.queue = new
+        while True:
             try:
-                inline.put(old.get_nowait())
+                new.put(old.get_nowait())
             except queue.Empty:
-                break
-        return True
+                return True
 
     def shutdown(self) -> None:
         if isinstance(self.queue, InlineDelivery):
