@@ -28,8 +28,8 @@ the last estimate, and that estimate exact) they are renewed every ``kinetics.re
 not 100 Hz of the load cells' noise (:class:`RestGate`). Each topic is made and published
 only while something subscribes it (volatile topics: a reader that matches gets the next
 sample either way); the estimate itself is kept up to date regardless.
-``/diagnostics``: the residual (largest, in m or rad and in standard deviations), exact or least squares, cond(J), the pose's standard
-deviations; WARN for a least-squares pose, a step limited by ``kinetics.max_step``, a pose
+``/diagnostics``: the residual (largest, in m or rad and in standard deviations), exact or
+least squares, cond(J), the pose's standard deviations; WARN for a least-squares pose, a step limited by ``kinetics.max_step``, a pose
 near a singularity (cond(J) above ``singularity_warn_fraction`` × ``singularity_condition_max``),
 another assembly mode within ``ambiguity_distance`` or a slack cable; ERROR for a
 malformed joint state.
