@@ -29,10 +29,10 @@ not 100 Hz of the load cells' noise (:class:`RestGate`). Each topic is made and 
 only while something subscribes it (volatile topics: a reader that matches gets the next
 sample either way); the estimate itself is kept up to date regardless.
 ``/diagnostics``: the residual (largest, in m or rad and in standard deviations), exact or
-least squares, cond(J), the pose's standard deviations; WARN for a least-squares pose, a step limited by ``kinetics.max_step``, a pose
-near a singularity (cond(J) above ``singularity_warn_fraction`` × ``singularity_condition_max``),
-another assembly mode within ``ambiguity_distance`` or a slack cable; ERROR for a
-malformed joint state.
+least squares, cond(J), the pose's standard deviations; WARN for a least-squares pose, a step
+limited by ``kinetics.max_step``, a pose near a singularity (cond(J) above
+``singularity_warn_fraction`` × ``singularity_condition_max``), another assembly mode within
+``ambiguity_distance`` or a slack cable; ERROR for a malformed joint state.
 """
 from __future__ import annotations
 
