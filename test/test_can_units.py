@@ -5,6 +5,7 @@ Oracles are the numbers of docs/can.md and CiA 402-2 tables, not the code.
 import math
 import struct
 import threading
+import time
 from pathlib import Path
 
 import canopen
@@ -160,19 +161,24 @@ def test_bus_load_estimate_of_docs_can_md():
 
 def test_periodic_loop_keeps_absolute_deadlines():
     stats = PeriodStats(0.002)
-    ticks = []
-    run_periodic(0.002, lambda k, t: ticks.append(t), threading.Event(), stats=stats,
-                 max_cycles=200)
+    ticks, missed = [], []              # each tick's wake time, and the misses counted before it
+    start = time.perf_counter()
+    run_periodic(0.002, lambda k, t: (ticks.append(t), missed.append(stats.overruns)),
+                 threading.Event(), stats=stats, max_cycles=200)
     rep = stats.report()
-    # absolute deadlines: the ticks stay on the grid t0 + m·period (missed deadlines are
-    # skipped and counted as overruns), whatever the jitter of single cycles: their offset
-    # from the grid does not grow (a relative sleep's would, by its latency every tick). The
-    # offset itself may be a constant scheduling latency: 0.22 periods beside two busy loops
-    phase = (np.array(ticks) - ticks[0]) / 0.002
-    frac = phase - np.round(phase)
-    offset = np.median(frac)
-    assert np.median(np.abs(frac - offset)) < 0.1, (offset, frac)
-    assert round(phase[-1] - offset) == 199 + rep.overruns
+    # absolute deadlines: the m-th tick wakes on the grid start + (1 + g)·period, g = m plus the
+    # deadlines missed (skipped and counted) before it, never early, late by a scheduling
+    # latency, not by one that adds up tick after tick as a relative sleep's would. The grid's
+    # origin is taken before the call, not from the first tick: that one may itself be late
+    # (beside three workers and two busy loops it was 1.6 periods late, one miss)
+    phase = (np.array(ticks) - start) / 0.002 - 1.0
+    grid = np.arange(200) + np.array(missed)
+    late = phase - grid
+    assert np.all(late >= 0.0), late
+    # a tick preempted in its spin wakes a period late, and its miss is counted at the next:
+    # rare; the grid holds for the others
+    assert np.mean(late < 1.0) > 0.9, late
+    assert np.median(late) < 0.5, late
     assert rep.cycles == 200 and rep.p50 < 0.001
 
 

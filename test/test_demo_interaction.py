@@ -41,7 +41,7 @@ def _theta(q) -> float:
 
 def _read(bag: Path) -> dict:
     """Every topic the numbers need, decoded here: stamps (ns) and values."""
-    rows: dict[str, list] = {'pose': [], 'body': [], 'wrench': [], 'goal': [], 'status': []}
+    rows: dict[str, list] = {'pose': [], 'body': [], 'wrench': [], 'goal': [], 'status': [], 'wrench_rx': []}
     with Reader(bag) as reader:
         t0 = reader.start_time
         for conn, t_ns, data in reader.messages():
@@ -60,6 +60,7 @@ def _read(bag: Path) -> dict:
                 rows['body'].append((stamp, m.pose.position.y, _theta(m.pose.orientation)))
             elif conn.topic == '/brace/sim/wrench':
                 rows['wrench'].append((stamp, m.wrench.force.x, m.wrench.force.y, m.wrench.torque.z))
+                rows['wrench_rx'].append(t_ns)
             else:
                 rows['goal'].append((stamp, m.wrench.force.y))
     return {'t0': t0, **rows}
@@ -137,6 +138,7 @@ def test_interaction_report_numbers_agree_with_the_recorded_truth(demo):
     ta, tb = (g_stamp - t0) * 1e-9, (next_stamp - t0) * 1e-9
     assert report['step']['window_s'] == pytest.approx([ta, tb], abs=1e-9)
     m = (tw >= ta) & (tw < tb)
+    assert m.sum() > 50, _no_step_samples(data, ta, tb)
     t_rel, resp = tw[m] - ta, fy[m]
     last_out = max((i for i in range(resp.size) if abs(resp[i] - g) > 0.05 * g), default=None)
     # never back inside by the window's end: inf (the report says so)
@@ -149,6 +151,25 @@ def test_interaction_report_numbers_agree_with_the_recorded_truth(demo):
     assert report['step']['final_mean'] == pytest.approx(final, abs=0.01)
     # what the truth shows about the controller: it holds the goal at the step's end
     assert abs(final - g) < 0.05 * g
+
+
+def _no_step_samples(data: dict, ta: float, tb: float) -> str:
+    """What the bag holds around a step window with (almost) no true wrench in it (seen once,
+    beside two busy loops): the stamps and the recorder's receive times on each side, the
+    largest holes, and whether the truth's poses have the same hole."""
+    t0 = data['t0']
+    tw = (np.array([r[0] for r in data['wrench']], dtype=float) - t0) * 1e-9
+    rx = (np.array(data['wrench_rx'], dtype=float) - t0) * 1e-9
+    tp = (np.array([r[0] for r in data['pose']], dtype=float) - t0) * 1e-9
+    order = np.argsort(tw)
+    gaps = np.diff(tw[order])
+    worst = np.argsort(gaps)[-3:][::-1]
+    near = np.flatnonzero((tw > ta - 0.5) & (tw < tb + 0.5))
+    return (f'step window [{ta:.3f}, {tb:.3f}] s: {int(np.sum((tw >= ta) & (tw < tb)))} true wrench samples '
+            f'of {tw.size}; truth poses in it: {int(np.sum((tp >= ta) & (tp < tb)))}; largest holes in the '
+            f'wrench stamps: {[(round(float(tw[order][i]), 3), round(float(gaps[i]), 3)) for i in worst]}; '
+            f'(stamp, received) within 0.5 s of it: '
+            f'{[(round(float(tw[i]), 3), round(float(rx[i]), 3)) for i in near[::10]]}')
 
 
 DEVICES = ('lumbar_brace', 'lumbar_brace_v2', 'neck_brace_4rpr', 'neck_brace_3rrr', 'neck_brace_2r',
