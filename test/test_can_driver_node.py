@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import time
 
 import numpy as np
 import pytest
@@ -257,3 +258,27 @@ def test_the_truth_topics_are_made_only_while_read(ros, driver):
     true = driver.sim.truth().pose
     got = np.array([poses[-1].pose.position.x, poses[-1].pose.position.y])
     np.testing.assert_allclose(got, true[:2], atol=1e-4)    # the ring at rest: the newest truth
+
+
+def test_a_truth_publisher_that_falls_behind_publishes_the_truths_it_missed(ros, driver):
+    """The cycle's process keeps sending snapshots while this node's executor does not run
+    (a starved process: 1.2 s here, 1.5 s beside two busy loops in run 307's demo): the next
+    tick publishes the truths it missed, each stamped with its own SYNC, ``sim.truth_rate_hz``
+    (20 Hz) apart, not one sample and a hole. The stamps are the simulator's: each is a SYNC
+    the master sent (the truth of a snapshot), checked against the truth's own record."""
+    from geometry_msgs.msg import PoseStamped
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    from brace_control.nodes import topics
+    probe = ros.node('truth_probe')
+    deep = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
+    poses = ros.collect(probe, PoseStamped, topics.SIM_POSE, deep)
+    ros.spin_until(lambda: len(poses) >= 3, 3.0, '/brace/sim/pose')
+    time.sleep(1.2)                                   # the executor stands still
+    n = len(poses)
+    ros.spin_until(lambda: len(poses) >= n + 20, 3.0, 'the missed truths')
+    stamps = np.array(sorted({p.header.stamp.sec + p.header.stamp.nanosec * 1e-9 for p in poses}))
+    gaps = np.diff(stamps)
+    rate = 20.0
+    assert gaps.max() < 1.6 / rate, gaps                # no hole: at most a tick late
+    assert np.median(gaps) == pytest.approx(1.0 / rate, abs=0.006), gaps

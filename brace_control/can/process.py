@@ -50,6 +50,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
@@ -80,6 +81,9 @@ START_TIMEOUT_S = 60.0
 EXIT_TIMEOUT_S = 5.0
 #: s the parent waits, once the link closed, for the child's exit code (what ended it)
 LINK_CLOSED_EXIT_S = 1.0
+#: the simulator's truths the parent keeps, one per snapshot (5 s at 100 Hz): a ground-truth
+#: publisher starved for a while publishes the ones it missed, stamped as they were
+TRUTH_BACKLOG = 500
 
 
 def _array_from(dtype: str, shape: tuple[int, ...], data: bytes) -> np.ndarray:
@@ -254,6 +258,18 @@ class _SimView(_Remote):
     def truth_at(self, wall: float) -> Any:
         return self._owner.snapshot.truth
 
+    def truths_since(self, stamp: float) -> list[Any]:
+        """The truths of the snapshots received after the one stamped ``stamp`` (wall clock,
+        s), oldest first, among the last :data:`TRUTH_BACKLOG`: none is lost to a reader that
+        falls behind the snapshots for a while."""
+        owner = self._owner
+        with owner._truths_lock:
+            kept = tuple(owner._truths)
+        k = len(kept)
+        while k and kept[k - 1].stamp > stamp:
+            k -= 1
+        return list(kept[k:])
+
     def set_rest_pose(self, pose: np.ndarray, stamp: float | None = None) -> None:
         """A stream (the patient's trunk, 50-100 Hz): sent, not waited for."""
         self._owner.cast('sim', 'set_rest_pose', np.asarray(pose, float), stamp)
@@ -336,6 +352,8 @@ class MasterProcess:
         self._ended: str | None = None
         self._closing = False
         self._snapshot: Snapshot | None = None
+        self._truths: deque[Any] = deque(maxlen=TRUTH_BACKLOG)    # each new one a snapshot brought
+        self._truths_lock = threading.Lock()
         self._ready = threading.Event()
         self._info: dict[str, Any] = {}
         ours, theirs = socket.socketpair()
@@ -418,6 +436,10 @@ class MasterProcess:
         if snap.events:
             with self._events_lock:
                 self._events.extend(snap.events)
+        truth = snap.truth
+        if truth is not None and (not self._truths or truth.stamp > self._truths[-1].stamp):
+            with self._truths_lock:
+                self._truths.append(truth)
         self._snapshot = snap
         if periodic and self._on_snapshot is not None:
             self._fresh.set()             # the callback runs in its own thread (it may call)

@@ -97,8 +97,10 @@ With ``can.sim: true`` the simulated brace (:mod:`brace_control.sim`) is started
 cycle's process on the same python-can channel before the master boots (a ``virtual`` bus
 only exists inside one process), and its ground truth is published at ``sim.truth_rate_hz``
 (what a user compares an estimator or a controller against; nothing of the stack
-subscribes to it), each topic while something subscribes it (they are volatile: a reader
-gets the next sample either way, and nobody pays for truth nobody reads):
+subscribes to it), with ``topics.TRUTH_QOS`` (a tick that came late publishes the truths
+it missed, each with its own SYNC's stamp), each topic while something subscribes it (they
+are volatile: a reader gets the next sample either way, and nobody pays for truth nobody
+reads):
 
 * ``/brace/sim/joint_states`` (``JointState``): the true actuator positions, rates and
   efforts (force N / torque N·m, before load-cell noise and quantisation);
@@ -263,6 +265,7 @@ class CanDriverNode(LifecycleNode):
                                               callback_group=self._stream_group)
         self._event_timer.cancel()
         self._truth_timer: Any = None
+        self._truth_published = 0.0             # stamp of the newest truth published (s)
         if self.cfg['can']['sim']:
             self._truth_publishers()
         self._constructed = True
@@ -334,6 +337,7 @@ class CanDriverNode(LifecycleNode):
             if not isinstance(self.master, MasterProcess):   # else each sample publishes
                 self._js_timer.reset()
             if self._truth_timer is not None:
+                self._truth_published = 0.0          # the record starts now, not with a backlog
                 self._truth_timer.reset()
             self.get_logger().info(f'active: drives {self.master.state.value}; call ~/home then ~/enable')
             return TransitionCallbackReturn.SUCCESS
@@ -496,12 +500,43 @@ class CanDriverNode(LifecycleNode):
         from .msgs import pose_kind, pose_msg, wrench_msg
         self.create_subscription(PoseStamped, topics.SIM_BODY_REST, self._on_body_rest,
                                  topics.STATE_QOS, callback_group=self._stream_group)
-        self._truth_pubs = tuple(self.create_lifecycle_publisher(t, name, topics.STATE_QOS) for t, name in (
+        self._truth_pubs = tuple(self.create_lifecycle_publisher(t, name, topics.TRUTH_QOS) for t, name in (
             (JointState, topics.SIM_JOINT_STATES), (PoseStamped, topics.SIM_POSE),
             (WrenchStamped, topics.SIM_WRENCH), (PoseStamped, topics.SIM_BODY_POSE)))
         kind = pose_kind(self.mechanism)
         base, platform = self.cfg['base_frame'], self.cfg['platform_frame']
         last_wrench: list[Any] = [None, None]       # (pose, efforts) bytes, the platform wrench
+        rate = float(self.cfg['sim']['truth_rate_hz'])
+        # the cycle's process: the truths of its snapshots, one per joint-state sample; kept
+        # at least this far apart (s): the truth's rate, with half a sample's slack
+        spacing = max(1.0 / rate - 0.5 / float(self.cfg['can']['joint_state_rate_hz']), 0.0)
+
+        def truths(sim: Any) -> list[Any]:
+            """What this tick publishes: in this process, the truth of the SYNC the last
+            /brace/joint_states described (same stamp: a comparison with the estimate pairs
+            the same instant, not two SYNCs ms apart). From the cycle's process, every
+            snapshot's truth since the last one published, ``spacing`` apart: a tick that
+            came late (this process starved for a while) publishes the ones it missed,
+            stamped as they were, instead of leaving a hole in the record. Nothing new for
+            two ticks (the world stands still): the newest again."""
+            if not hasattr(sim, 'truths_since'):
+                return [sync_truth(sim, self._last_js_wall)]
+            newest = sim.truth()
+            last = self._truth_published
+            if not last:                            # the first tick: the newest
+                self._truth_published = newest.stamp if newest is not None else 0.0
+                return [newest] if newest is not None else []
+            out: list[Any] = []
+            for truth in sim.truths_since(last):
+                if truth.stamp >= last + spacing:
+                    out.append(truth)
+                    last = truth.stamp
+            if out:
+                self._truth_published = last
+                return out
+            # none new for two ticks: the world stands still (no SYNC), its truth goes on
+            stale = newest is not None and time.time() - newest.stamp > 2.0 / rate
+            return [newest] if stale and newest.stamp <= last else []
 
         def publish() -> None:
             sim = self.sim
@@ -509,13 +544,13 @@ class CanDriverNode(LifecycleNode):
                 return                    # shutting down / closed: the publishers are going
             # volatile topics: a message nobody reads is not made (a reader that matches gets
             # the next one, as it would anyway)
-            js_pub, pose_pub, wrench_pub, body_pub = self._truth_pubs
             wanted = [p.get_subscription_count() > 0 for p in self._truth_pubs]
-            if not any(wanted):
-                return
-            # the truth of the SYNC the last /brace/joint_states described (same stamp): a
-            # comparison with the estimate pairs the same instant, not two SYNCs ms apart
-            truth = sync_truth(sim, self._last_js_wall)
+            if any(wanted):
+                for truth in truths(sim):
+                    publish_one(truth, wanted)
+
+        def publish_one(truth: Any, wanted: list[bool]) -> None:
+            js_pub, pose_pub, wrench_pub, body_pub = self._truth_pubs
             stamp = ns_to_stamp(round(truth.stamp * 1e9) if truth.stamp else
                                 self.get_clock().now().nanoseconds)
             if wanted[0]:
@@ -538,7 +573,7 @@ class CanDriverNode(LifecycleNode):
                     return
                 last_wrench[:] = key, platform_frame_wrench(truth.pose, w, kind)
             wrench_pub.publish(wrench_msg(last_wrench[1], frame_id=platform, stamp=stamp, kind=kind))
-        self._truth_timer = self.create_timer(1.0 / float(self.cfg['sim']['truth_rate_hz']),
+        self._truth_timer = self.create_timer(1.0 / rate,
                                               timer_callback(publish), callback_group=self._stream_group)
         self._truth_timer.cancel()                  # runs while active
 

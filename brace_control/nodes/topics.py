@@ -13,7 +13,7 @@ __all__ = [
     'GOAL_STATUS', 'EXECUTION_STATUS', 'DRIVER_STATE', 'DIAGNOSTICS', 'SIM_JOINT_STATES',
     'SIM_POSE', 'SIM_WRENCH', 'WRENCH_GOAL', 'INTERACTION_GOAL', 'SIM_BODY_REST', 'SIM_BODY_POSE',
     'BRINGUP',
-    'GOAL_QOS', 'TRAJECTORY_QOS', 'SETPOINT_QOS', 'STATE_QOS', 'MEASURED_QOS', 'STATUS_QOS',
+    'GOAL_QOS', 'TRAJECTORY_QOS', 'SETPOINT_QOS', 'STATE_QOS', 'TRUTH_QOS', 'MEASURED_QOS', 'STATUS_QOS',
     'GOAL_STATUS_QOS', 'GOAL_STATUS_DEPTH',
     'LATCHED_QOS', 'DIAGNOSTICS_QOS',
 ]
@@ -98,6 +98,11 @@ SETPOINT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
 #: Measured state (joint_states, pose, wrench): reliable, depth 10 (a slow callback loses
 #: no sample of the 100 Hz stream; recorded bags are complete).
 STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                       reliability=ReliabilityPolicy.RELIABLE)
+#: The simulator's ground truth (``/brace/sim/*``): as :data:`STATE_QOS`, deeper. A publisher
+#: that fell behind publishes the samples it missed at once, each with its own stamp
+#: (can_driver_node); 100 keeps 5 s of the default 20 Hz for a reader as deep.
+TRUTH_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                        reliability=ReliabilityPolicy.RELIABLE)
 #: A subscriber that needs only the latest measurement: best effort matches any publisher.
 MEASURED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
