@@ -26,14 +26,16 @@ demo: venv
 	$(PY) -m brace_control.demo --device $(DEVICE) --mode $(MODE) --out demo_output
 
 # pytest exits 5 when it collected no test: that is a failure here, said out loud.
-# Two pytest-xdist workers, a whole file each at a time (--dist loadfile: a module's stack
+# Three pytest-xdist workers, a whole file each at a time (--dist loadfile: a module's stack
 # fixtures stay on one worker), each on its own ROS domain (test/conftest.py); the control
-# cycle runs in its own real-time process (issue 27), so two stacks share two cores.
+# cycle runs in its own real-time process (issue 27), and a stack at rest takes a quarter of
+# a core, so three stacks share two cores (the suite waits on the simulated world's clock
+# more than it computes: two workers left a core idle).
 # --no-loadscope-reorder: the files go out in test/conftest.py's order, the longest first
 # (xdist's own order, the most tests first, left the few-test bring-up files for the end).
-# Then the files marked 'serial' (the control cycle inside the test's own process), alone.
+# Then the file marked 'serial' (the control cycle inside the test's own process), alone.
 # TEST_WORKERS=0 runs everything in one process; timings: bench/RESULTS.md "Test suite time".
-TEST_WORKERS ?= 2
+TEST_WORKERS ?= 3
 test: venv
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder -m "not serial"; rc=$$?; \
 	$(PY) -m pytest -q -m serial; rc2=$$?; \

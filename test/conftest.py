@@ -161,7 +161,7 @@ UNTIMED_FILE_S = 30.0
 
 def pytest_collection_modifyitems(session, config, items):
     """The longest files first, each file's tests in their own order: pytest-xdist's
-    ``--dist loadfile`` hands the files out in this order, so the two workers end within
+    ``--dist loadfile`` hands the files out in this order, so the workers end within
     a short file of each other instead of one running a long file alone at the end. The
     order changes nothing else (every test sets up its own state, or its module's)."""
     import json
