@@ -33,16 +33,12 @@ demo: venv
 # more than it computes: two workers left a core idle).
 # --no-loadscope-reorder: the files go out in test/conftest.py's order, the longest first
 # (xdist's own order, the most tests first, left the few-test bring-up files for the end).
-# Then the file marked 'serial' (the control cycle inside the test's own process), alone.
 # TEST_WORKERS=0 runs everything in one process; timings: bench/RESULTS.md "Test suite time".
 TEST_WORKERS ?= 3
 test: venv
-	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder -m "not serial"; rc=$$?; \
-	$(PY) -m pytest -q -m serial; rc2=$$?; \
-	for r in $$rc $$rc2; do \
-	  if [ $$r -eq 5 ]; then echo "make test: pytest collected no tests" >&2; fi; \
-	  if [ $$r -ne 0 ]; then exit $$r; fi; \
-	done
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder; rc=$$?; \
+	if [ $$rc -eq 5 ]; then echo "make test: pytest collected no tests" >&2; fi; \
+	exit $$rc
 
 # every benchmark script; numbers and the commands that made them: bench/RESULTS.md
 bench: venv

@@ -242,7 +242,7 @@ _SESSION_DDS: list = []
 #: code may hold. pytest's own ``faulthandler_timeout`` only prints the stacks: the run would
 #: still hang. Ended, an xdist worker is reported as crashed in that test and replaced, and
 #: the run goes on. The longest test takes 40 s (with its module's set-up, 2026-11-28: the
-#: serial sway test; the interaction demo's set-up 27 s), so 180 s leaves four times that.
+#: interaction sway test; the interaction demo's set-up 27 s), so 180 s leaves four times that.
 TEST_LIMIT_S = 180.0
 
 

@@ -294,3 +294,26 @@ def test_the_snapshots_dataclasses_cross_as_records_with_every_field():
         b: int = dataclasses.field(init=False, default=0)
     with pytest.raises(TypeError, match='not an __init__ argument'):
         send_as_record(Derived)
+
+
+def test_the_cycle_trace_records_every_sync_and_each_goals_arrival_in_the_child(enabled):
+    """``trace_cycles``: from the call on, the child records the wall time of each SYNC
+    cycle (the SYNC period apart: can.sync_rate_hz) and of each interaction goal that reached
+    the cycle, refused ones too; ``take_cycle_trace`` empties it; off, nothing is kept."""
+    mp = enabled
+    assert mp.take_cycle_trace() == {'cycles': [], 'commands': [], 'goals': []}
+    period = 1.0 / float(CFG['can']['sync_rate_hz'])
+    mp.trace_cycles(True)
+    t0 = time.time()
+    time.sleep(0.3)
+    with pytest.raises(ValueError, match='no interaction is running'):
+        mp.set_interaction_goal([0.0, 5.0, 0.0])
+    t1 = time.time()
+    got = mp.take_cycle_trace()
+    cycles = np.array(got['cycles'])
+    assert cycles.size > 0.2 / period and t0 - period < cycles[0] and cycles[-1] <= time.time()
+    assert np.median(np.diff(cycles)) == pytest.approx(period, rel=0.05)
+    assert len(got['goals']) == 1 and t0 + 0.3 <= got['goals'][0] <= t1 and got['commands'] == []
+    assert len(mp.take_cycle_trace()['cycles']) < len(cycles)      # emptied: only the new ones
+    mp.trace_cycles(False)
+    assert mp.take_cycle_trace() == {'cycles': [], 'commands': [], 'goals': []}

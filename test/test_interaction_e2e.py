@@ -28,11 +28,6 @@ from brace_control.nodes.msgs import pose_msg, status_values
 from ros_helpers import BUSY_HOST_ARGS, home_and_enable, stack_in_process, wait_until as wait
 from seed001 import leg_lengths as legs, leg_matrix
 
-# make test runs this file after the parallel part, alone (setup.cfg marker 'serial'): the
-# whole stack in this process, its SYNC cycle at normal priority beside the test's threads,
-# stretched 3.4x beside another worker's stack
-pytestmark = pytest.mark.serial
-
 ROOT = Path(__file__).resolve().parent.parent
 LUMBAR = ROOT / 'config' / 'lumbar_brace.yaml'
 PARAMS = yaml.safe_load(LUMBAR.read_text())['/**']['ros__parameters']
@@ -191,9 +186,8 @@ class Truth:
 
 @pytest.fixture(scope='module')
 def stack(tmp_path_factory):
-    # the test records the executor's command at every SYNC: the cycle runs in this process
     extra = ['-p', f'can.channel:=inter{next(_channels)}', '-p', 'can.sync_spin_us:=0',
-             '-p', 'sim.truth_rate_hz:=100.0', '-p', 'can.cycle_process:=false', *BUSY_HOST_ARGS]
+             '-p', 'sim.truth_rate_hz:=100.0', *BUSY_HOST_ARGS]
     with stack_in_process(LUMBAR, tmp_path_factory.mktemp('device'), extra) as b:
         truth = Truth(b.helper)
         home_and_enable(b)
@@ -220,33 +214,23 @@ def test_zero_torque_mode_follows_a_swaying_patient_and_holds_wrench_goals(stack
     rest_pub = b.helper.create_publisher(PoseStamped, topics.SIM_BODY_REST, topics.STATE_QOS)
     goal_pub = b.helper.create_publisher(WrenchStamped, topics.WRENCH_GOAL, topics.GOAL_QOS)
     wait(lambda: len(truth.pose) > 5 and len(truth.wrench) > 5, 10, 'the truth topics')
-    # the driver's command at every SYNC (the in-cycle admittance's output)
-    executor = b.node('can_driver_node').master.executor
-    commands: list[np.ndarray] = []
-    step = executor.step
-
-    #: the wall time of every SYNC cycle the executor ran: the simulated world advances one
-    #: SYNC period per SYNC, so a loaded host that skips cycles stops the world meanwhile
-    cycles: list[float] = []
-
-    def recording_step(t: float):
-        cycles.append(time.time())
-        q, v = step(t)
-        if executor.source is not None:
-            commands.append(q)
-        return q, v
-    executor.step = recording_step
-    # when each wrench goal reached the driver's SYNC cycle (wall clock, the truth's stamps'
-    # clock): settling is counted from there (docs/interaction.md), not from this process's
-    # publish, two DDS hops earlier (tens of ms on a loaded host)
+    # the driver's command at every SYNC (the in-cycle admittance's output), the wall time of
+    # every SYNC cycle (the simulated world advances one SYNC period per SYNC, so a loaded
+    # host that skips cycles stops the world meanwhile) and when each wrench goal reached the
+    # cycle (wall clock, the truth's stamps' clock): settling is counted from there
+    # (docs/interaction.md), not from this process's publish, two DDS hops earlier (tens of ms
+    # on a loaded host). The master's cycle trace, taken from the control cycle's process.
     master = b.node('can_driver_node').master
+    commands: list[list[float]] = []
+    cycles: list[float] = []
     goal_arrivals: list[float] = []
-    set_goal = master.set_interaction_goal
 
-    def recording_set_goal(w):
-        goal_arrivals.append(time.time())
-        return set_goal(w)
-    master.set_interaction_goal = recording_set_goal
+    def take_trace() -> None:
+        got = master.take_cycle_trace()
+        cycles.extend(got['cycles'])
+        commands.extend(q for _, q in got['commands'])
+        goal_arrivals.extend(got['goals'])
+    master.trace_cycles(True)
     period = 1.0 / float(b.config['can']['sync_rate_hz'])
     ok, msg = trigger(b, 'start')
     assert ok, msg
@@ -305,12 +289,14 @@ def test_zero_torque_mode_follows_a_swaying_patient_and_holds_wrench_goals(stack
             msg.wrench.force.y = value
         else:
             msg.wrench.torque.z = value
+        take_trace()
         t_goal, n_arrived = time.time(), len(goal_arrivals)
         goal_pub.publish(msg)
         truth.wait_status(lambda s: '/wrench_goal/' in s.name and s.message == 'accepted'
                           and float(status_values(s)['goal'].split(',')[axis]) == value,
                           2, f'{name} accepted')
         time.sleep(2.0)
+        take_trace()
         assert len(goal_arrivals) == n_arrived + 1, f'{name}: the driver got {goal_arrivals[n_arrived:]}'
         arrived = goal_arrivals[-1]
         tw, w = truth.since(truth.wrench_sampled, arrived)
@@ -338,6 +324,8 @@ def test_zero_torque_mode_follows_a_swaying_patient_and_holds_wrench_goals(stack
     ok, msg = trigger(b, 'stop')
     assert ok, msg
     truth.wait_status(lambda s: s.message == 'stopped', 5, 'stopped')
+    take_trace()
+    master.trace_cycles(False)
     # continuity: the driver's command (the admittance in the SYNC cycle) never steps or
     # accelerates beyond the actuator limits (docs/safety.md §7: no jump at start, goal or stop)
     cmd = np.array(commands)

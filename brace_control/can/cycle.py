@@ -255,6 +255,11 @@ class Cycle:
                 ex.forces = self._latest_forces()
             q, v = ex.step(t_wake + period)
             motion.collect()
+            if motion.trace is not None:
+                now = time.time()
+                motion.trace.cycles.append(now)
+                if ex.source is not None:
+                    motion.trace.commands.append((now, tuple(float(x) for x in q)))
         cpu = self._scaling.counts_per_unit
         limits = self._life.limits
         for d in self._life.drives:

@@ -12,7 +12,8 @@ nowhere else:
   homing start, closing, ...), the slow force-steered moves (relief, take-up) and a soft stop
   requested; with the waits the API makes on them;
 * :class:`Motion`: the commanded motion (:class:`~brace_control.control.execution.PathExecutor`),
-  its lock (the SYNC thread against the API threads) and the execution events not yet read.
+  its lock (the SYNC thread against the API threads), the execution events not yet read and,
+  while asked for, the :class:`CycleTrace`.
 
 Writers: the API threads (one at a time, under the master's API lock) and the SYNC thread;
 each flag has one writer per phase (the docstrings say which).
@@ -23,6 +24,7 @@ import logging
 import math
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
@@ -35,19 +37,49 @@ if TYPE_CHECKING:
     from .supervision import Fault, Limits, Supervisor
     from .sync import SyncClock
 
-__all__ = ['Lifecycle', 'Motion']
+__all__ = ['CycleTrace', 'Lifecycle', 'Motion']
 
 log = logging.getLogger('brace_control.can.master')
 
 
+class CycleTrace:
+    """What the SYNC cycle commanded, cycle by cycle, while asked
+    (:meth:`~.master.BraceMaster.trace_cycles`): to judge a controller on the simulated
+    world's clock (one SYNC period per cycle, whatever the host's load) and from the instant a
+    goal reached the cycle, not from a publish two DDS hops earlier. Wall clock
+    (``time.time()``, the clock of the SYNC stamps); the last :data:`LENGTH` of each."""
+
+    #: kept of each record (60 s at 500 Hz)
+    LENGTH = 30_000
+
+    def __init__(self) -> None:
+        #: each cycle's command: when it was taken
+        self.cycles: deque[float] = deque(maxlen=self.LENGTH)
+        #: ``(when, positions)`` of each cycle the interaction's admittance drove the command
+        self.commands: deque[tuple[float, tuple[float, ...]]] = deque(maxlen=self.LENGTH)
+        #: when each interaction wrench goal reached the cycle (accepted or not)
+        self.goals: deque[float] = deque(maxlen=self.LENGTH)
+
+    def take(self) -> dict[str, list]:
+        """The records since the last call (oldest first), as plain lists; emptied."""
+        out = {'cycles': list(self.cycles), 'commands': [(t, list(q)) for t, q in self.commands],
+               'goals': list(self.goals)}
+        self.cycles.clear()
+        self.commands.clear()
+        self.goals.clear()
+        return out
+
+
 class Motion:
     """The commanded motion: the executor the SYNC cycle samples, the lock that serialises it
-    between the SYNC thread and the API threads, and its events not yet read."""
+    between the SYNC thread and the API threads, its events not yet read, and the cycle's
+    trace while one is asked for."""
 
     def __init__(self, executor: PathExecutor) -> None:
         self.executor = executor
         self.lock = threading.Lock()
         self.events: list[ExecutionEvent] = []
+        self.trace: CycleTrace | None = None
 
     def collect(self) -> None:
         """Move the executor's new events to :attr:`events` (the caller holds :attr:`lock`)."""

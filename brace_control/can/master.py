@@ -67,7 +67,7 @@ from .boot import Boot
 from .cia402 import NmtState, State402, emcy_description
 from .cycle import Cycle
 from .errors import DriverInitializationError, DriverOperationError
-from .lifecycle import Lifecycle, Motion
+from .lifecycle import CycleTrace, Lifecycle, Motion
 from .monitors import RELIEVABLE, Monitors
 from .pdo import SdoWrite
 from .plan import BootPlan, ModulePlan
@@ -316,6 +316,22 @@ class BraceMaster:
         """What happened to each trajectory since the last call (oldest first)."""
         return self.motion.drain()
 
+    def trace_cycles(self, on: bool = True) -> None:
+        """Record, or stop recording, what each SYNC cycle commands
+        (:class:`~.lifecycle.CycleTrace`; off by default: nothing is kept)."""
+        with self.motion.lock:
+            if not on:
+                self.motion.trace = None
+            elif self.motion.trace is None:
+                self.motion.trace = CycleTrace()
+
+    def take_cycle_trace(self) -> dict[str, list]:
+        """The cycle's records since the last call (:meth:`CycleTrace.take
+        <.lifecycle.CycleTrace.take>`; empty lists when not recording)."""
+        with self.motion.lock:
+            trace = self.motion.trace
+            return trace.take() if trace is not None else {'cycles': [], 'commands': [], 'goals': []}
+
     # -- the interaction mode's admittance, run in the cycle (docs/safety.md §19)
 
     def start_interaction(self, source: object, tag: int) -> str | None:
@@ -345,6 +361,8 @@ class BraceMaster:
             checks (held axis, ``max_goal_wrench``, capacity at the current pose).
         """
         with self.motion.lock:
+            if self.motion.trace is not None:
+                self.motion.trace.goals.append(time.time())
             src = self.motion.executor.source
             if src is None:
                 raise ValueError('no interaction is running')

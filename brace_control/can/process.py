@@ -72,7 +72,7 @@ log = logging.getLogger('brace_control.can.process')
 SLOW_CALLS = frozenset({'boot', 'enable', 'disable', 'halt', 'home', 'recover', 'relieve',
                         'take_up', 'shutdown'})
 #: calls of a stream (at its rate) and reads that change nothing: answered without a snapshot
-NO_SNAPSHOT = frozenset({'set_targets', 'set_interaction_goal', 'status'})
+NO_SNAPSHOT = frozenset({'set_targets', 'set_interaction_goal', 'status', 'trace_cycles', 'take_cycle_trace'})
 #: longest a log record waits for the link before it goes to stderr instead (s)
 LOG_SEND_WAIT_S = 0.05
 #: longest the child may take to start (interpreter, numpy, canopen, the simulator) (s)
@@ -620,6 +620,12 @@ class MasterProcess:
 
     def protective_stop(self, kind: FaultKind, cause: str, *, drive: str | None = None) -> Any:
         return self.call('master', 'protective_stop', kind, cause, drive=drive)
+
+    def trace_cycles(self, on: bool = True) -> None:
+        self.call('master', 'trace_cycles', on)
+
+    def take_cycle_trace(self) -> dict[str, list]:
+        return self.call('master', 'take_cycle_trace')
 
     def shutdown(self, *, timeout: float = 0.5) -> None:
         """Drives disabled, bus closed, simulator off (in the child), then the child ends."""
