@@ -157,15 +157,13 @@ def pytest_sessionstart(session):
 #: listed counts as UNTIMED_FILE_S
 FILE_TIMES = os.path.join(os.path.dirname(__file__), 'file_times.json')
 UNTIMED_FILE_S = 30.0
-#: files that mostly wait (a signal's effect, a timeout, a bring-up's processes):
-#: under half of their wall time is CPU, theirs and their children's (bench/RESULTS.md,
-#: "Test suite time", 2026-11-28 fifth session), and none runs a control cycle in its own
-#: process (test_commission does, and its master's heartbeat lapsed beside four workers).
-#: ``make test`` runs them one after the other on one worker of its four, beside three that
-#: share out the rest: the waiting uses the core the others leave idle, without a fourth
-#: CPU-bound stack beside the timing tests.
-WAITING_FILES = ('test_never_unsupervised.py', 'test_bringup.py', 'test_bag.py',
-                 'test_shutdown.py', 'test_colcon.py')
+#: files that mostly wait (on the simulated world's clock, a signal's effect, a timeout):
+#: under a quarter of their wall time is CPU, theirs and their children's (bench/RESULTS.md,
+#: "Test suite time", 2026-11-28 fifth session). ``make test`` runs them one after the other
+#: on one worker of its four, beside three that share out the rest: the waiting uses the
+#: core the others leave idle, without a fourth CPU-bound stack beside the timing tests.
+WAITING_FILES = ('test_commission.py', 'test_never_unsupervised.py', 'test_bringup.py',
+                 'test_bag.py', 'test_shutdown.py')
 
 
 def pytest_xdist_make_scheduler(config, log):
