@@ -152,51 +152,25 @@ def pytest_sessionstart(session):
         _remove_half_made_ports()
 
 
-#: per file, the seconds it took in a measured run (``make test`` with ``--durations=0``: each
-#: file's setup, call and teardown summed; bench/RESULTS.md "Test suite time"); a file not
-#: listed counts as UNTIMED_FILE_S
+#: per file, the seconds it took in a measured run (``make test``'s two parts with
+#: ``--durations=0``: each file's setup, call and teardown summed; bench/RESULTS.md "Test suite
+#: time"); a file not listed counts as UNTIMED_FILE_S
 FILE_TIMES = os.path.join(os.path.dirname(__file__), 'file_times.json')
 UNTIMED_FILE_S = 30.0
-#: files that mostly wait (on the simulated world's clock, a signal's effect, a timeout):
-#: under a quarter of their wall time is CPU, theirs and their children's (bench/RESULTS.md,
-#: "Test suite time", 2026-11-28 fifth session). ``make test`` runs them one after the other
-#: on one worker of its four, beside three that share out the rest: the waiting uses the
-#: core the others leave idle, without a fourth CPU-bound stack beside the timing tests.
-WAITING_FILES = ('test_commission.py', 'test_never_unsupervised.py', 'test_bringup.py',
-                 'test_bag.py', 'test_shutdown.py')
-
-
-def pytest_xdist_make_scheduler(config, log):
-    """``--dist loadfile``, with :data:`WAITING_FILES` one unit: each file goes to one worker
-    whole (its tests share its module's fixtures), those files together to one worker.
-    (pytest-xdist's ``loadgroup`` cannot do it on pytest 9: the group it appends to a test's
-    node id no longer reaches the scheduler.)"""
-    if config.getvalue('dist') != 'loadfile':
-        return None
-    from xdist.scheduler import LoadScopeScheduling
-
-    class WaitingFilesTogether(LoadScopeScheduling):
-        def _split_scope(self, nodeid: str) -> str:
-            path = nodeid.split('::', 1)[0]
-            return 'waiting files' if os.path.basename(path) in WAITING_FILES else path
-    return WaitingFilesTogether(config, log)
 
 
 def pytest_collection_modifyitems(session, config, items):
-    """The longest units first (a file, or :data:`WAITING_FILES` together), each file's
-    tests in their own order: pytest-xdist hands the units out in this order, so the workers
-    end within a short file of each other instead of one running a long file alone at the
-    end. The order changes nothing else (every test sets up its own state, or its
-    module's)."""
+    """The longest files first, each file's tests in their own order: pytest-xdist's
+    ``--dist loadfile`` hands the files out in this order, so the workers end within
+    a short file of each other instead of one running a long file alone at the end. The
+    order changes nothing else (every test sets up its own state, or its module's)."""
     import json
     try:
         with open(FILE_TIMES) as f:
             times = json.load(f)
     except (OSError, ValueError):
-        times = {}
-    waiting = sum(float(times.get(name, UNTIMED_FILE_S)) for name in WAITING_FILES)
-    items.sort(key=lambda item: -(waiting if item.path.name in WAITING_FILES
-                                  else float(times.get(item.path.name, UNTIMED_FILE_S))))
+        return
+    items.sort(key=lambda item: -float(times.get(item.path.name, UNTIMED_FILE_S)))
 
 
 def pytest_report_header(config):
