@@ -598,10 +598,13 @@ def test_drives_stop_on_their_own_when_the_master_dies(rig):
     6007h = 3 (quick stop) when it stops. Bound: 200 ms + one heartbeat period + twice
     the slack (the simulator's own timer thread notices the silence)."""
     sim, master = rig
+    stalled = sim.stalled_seconds
     master.cycle.stop_event.set()           # the SYNC thread (and the heartbeat) stops dead
     t = wait_for(lambda: all(sim.drive(i).state.name == 'QUICK_STOP_ACTIVE' for i in (1, 2, 3)),
-                 0.3 + 2 * SLACK, 'drives in QUICK STOP ACTIVE')
-    assert t <= 0.3 + 2 * SLACK
+                 0.3 + 2 * SLACK + 2.0, 'drives in QUICK STOP ACTIVE')
+    # on the drives' own clock: minus the time this process stood still (a loaded host; the
+    # simulated drives live in it, their clock stood still too), which a real drive would not
+    assert t - (sim.stalled_seconds - stalled) <= 0.3 + 2 * SLACK, (t, sim.stalled_seconds - stalled)
 
 
 def test_boot_finds_drives_that_booted_earlier_without_heartbeat():

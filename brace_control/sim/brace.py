@@ -393,6 +393,13 @@ class SimulatedBrace:
         (:attr:`SimBus.cpu_seconds <brace_control.sim.host.SimBus.cpu_seconds>`)."""
         return self.host.cpu_seconds
 
+    @property
+    def stalled_seconds(self) -> float:
+        """Seconds the host process stood still so far, during which the simulated drives'
+        clock stood still too (:mod:`brace_control.sim.host`, "Host stalls"): a drive's
+        reaction is that much later in wall time than on its own clock."""
+        return self.host.stalled_seconds
+
     # ------------------------------------------------------------------ ground truth
 
     def truth(self) -> BraceTruth:

@@ -101,6 +101,9 @@ class SimBus:
         #: in whichever thread ran them: the simulator's share of its process's CPU
         self.cpu_seconds = 0.0
         self._cpu_lock = threading.Lock()     # the timer and the senders' threads add to it
+        #: seconds the host stood still, by the timer thread's count: the drives' clock
+        #: stood still with it (their timers are that much later in wall time)
+        self.stalled_seconds = 0.0
         self.bus: can.BusABC | None = None
         self._notifier: can.Notifier | None = None
         self._timer: threading.Thread | None = None
@@ -317,5 +320,6 @@ class SimBus:
             expected = min(self._woken_at, deadline) if woken else deadline
 
     def _host_stalled(self, seconds: float) -> None:
+        self.stalled_seconds += seconds
         for d in self.drives:
             d.host_stalled(seconds)
