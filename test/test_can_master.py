@@ -239,8 +239,11 @@ def test_a_stream_that_stops_decelerates_along_its_direction_and_holds(rig):
     delta = pose_delta([0.0, 0.004, 0.0])
     v = np.abs(delta).max() / 0.2                         # the stream's speed, ~20 mm/s
     q0 = move(master, delta, 0.2)
-    wait_for(lambda: master.status().stale_setpoint_holds >= 1, 0.2, 'stale report')
-    assert any('stale' in w for w in master.status().warnings)
+    # reported: the count and the warning, which stays until a setpoint comes (a loaded host
+    # can make the test's own stream pause past command_timeout; the hold then counted is
+    # reported too, and its warning goes with the stream's next setpoint: run 406)
+    wait_for(lambda: master.status().stale_setpoint_holds >= 1 and
+             any('stale' in w for w in master.status().warnings), 1.0, 'stale report')
     wait_for(lambda: not master.moving, 0.5, 'the command at rest')
     wait_for(lambda: np.allclose(master.feedback().position, master.executor.q, rtol=0, atol=3e-7), 0.3,
              'the drives settled at the command')
