@@ -264,8 +264,8 @@ def test_a_truth_publisher_that_falls_behind_publishes_the_truths_it_missed(ros,
     """The cycle's process keeps sending snapshots while this node's executor does not run
     (a starved process: 1.2 s here, 1.5 s beside two busy loops in run 307's demo): the next
     tick publishes the truths it missed, each stamped with its own SYNC, ``sim.truth_rate_hz``
-    (20 Hz) apart, not one sample and a hole. The stamps are the simulator's: each is a SYNC
-    the master sent (the truth of a snapshot), checked against the truth's own record."""
+    (20 Hz) apart, not one sample and a hole: no gap between distinct stamps over 1.6 periods,
+    their median one period."""
     from geometry_msgs.msg import PoseStamped
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 

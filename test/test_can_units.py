@@ -170,7 +170,7 @@ def test_periodic_loop_keeps_absolute_deadlines():
     # deadlines missed (skipped and counted) before it, never early, late by a scheduling
     # latency, not by one that adds up tick after tick as a relative sleep's would. The grid's
     # origin is taken before the call, not from the first tick: that one may itself be late
-    # (beside three workers and two busy loops it was 1.6 periods late, one miss)
+    # (beside two other test workers it was 1.6 periods late, one miss)
     phase = (np.array(ticks) - start) / 0.002 - 1.0
     grid = np.arange(200) + np.array(missed)
     late = phase - grid

@@ -330,7 +330,7 @@ class BraceMaster:
         <.lifecycle.CycleTrace.take>`; empty lists when not recording)."""
         with self.motion.lock:
             trace = self.motion.trace
-            return trace.take() if trace is not None else {'cycles': [], 'commands': [], 'goals': []}
+            return (trace if trace is not None else CycleTrace()).take()
 
     # -- the interaction mode's admittance, run in the cycle (docs/safety.md §19)
 
