@@ -17,10 +17,11 @@ import re
 import struct
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import canopen
-from canopen import objectdictionary as odmod
+if TYPE_CHECKING:
+    import canopen
+    from canopen import objectdictionary as odmod
 
 __all__ = ['ObjectRef', 'Dictionary', 'DictionaryReadError', 'STRUCT_CODES', 'type_name',
            'type_range', 'MODE_BITS', 'MODE_NAMES', 'lookup', 'eds_files', 'DEFAULT_EDS']
@@ -28,19 +29,26 @@ __all__ = ['ObjectRef', 'Dictionary', 'DictionaryReadError', 'STRUCT_CODES', 'ty
 #: the drive this project simulates (docs/can.md): ``can.eds`` when the YAML names none
 DEFAULT_EDS = 'lumbar_drive.eds'
 
+#: CiA 301 data type indices (table 44: the static data types, objects 0001h..001Bh), as
+#: canopen's ``objectdictionary`` names them; here so that reading a device file's CAN
+#: set-up (every node's start-up check) does not import canopen and python-can
+BOOLEAN, INTEGER8, INTEGER16, INTEGER32 = 0x01, 0x02, 0x03, 0x04
+UNSIGNED8, UNSIGNED16, UNSIGNED32, REAL32 = 0x05, 0x06, 0x07, 0x08
+VISIBLE_STRING, DOMAIN, INTEGER24, REAL64 = 0x09, 0x0F, 0x10, 0x11
+INTEGER64, UNSIGNED24, UNSIGNED64 = 0x15, 0x16, 0x1B
+
 #: struct codes of the data types a PDO can carry (CiA 301 basic types of 8..64 bits)
 STRUCT_CODES: dict[int, str] = {
-    odmod.BOOLEAN: 'B', odmod.INTEGER8: 'b', odmod.UNSIGNED8: 'B', odmod.INTEGER16: 'h',
-    odmod.UNSIGNED16: 'H', odmod.INTEGER32: 'i', odmod.UNSIGNED32: 'I', odmod.REAL32: 'f',
-    odmod.INTEGER64: 'q', odmod.UNSIGNED64: 'Q', odmod.REAL64: 'd',
+    BOOLEAN: 'B', INTEGER8: 'b', UNSIGNED8: 'B', INTEGER16: 'h', UNSIGNED16: 'H',
+    INTEGER32: 'i', UNSIGNED32: 'I', REAL32: 'f', INTEGER64: 'q', UNSIGNED64: 'Q', REAL64: 'd',
 }
 
 _TYPE_NAMES = {
-    odmod.BOOLEAN: 'BOOLEAN', odmod.INTEGER8: 'INTEGER8', odmod.INTEGER16: 'INTEGER16',
-    odmod.INTEGER24: 'INTEGER24', odmod.INTEGER32: 'INTEGER32', odmod.INTEGER64: 'INTEGER64',
-    odmod.UNSIGNED8: 'UNSIGNED8', odmod.UNSIGNED16: 'UNSIGNED16', odmod.UNSIGNED24: 'UNSIGNED24',
-    odmod.UNSIGNED32: 'UNSIGNED32', odmod.UNSIGNED64: 'UNSIGNED64', odmod.REAL32: 'REAL32',
-    odmod.REAL64: 'REAL64', odmod.VISIBLE_STRING: 'VISIBLE_STRING', odmod.DOMAIN: 'DOMAIN',
+    BOOLEAN: 'BOOLEAN', INTEGER8: 'INTEGER8', INTEGER16: 'INTEGER16', INTEGER24: 'INTEGER24',
+    INTEGER32: 'INTEGER32', INTEGER64: 'INTEGER64', UNSIGNED8: 'UNSIGNED8',
+    UNSIGNED16: 'UNSIGNED16', UNSIGNED24: 'UNSIGNED24', UNSIGNED32: 'UNSIGNED32',
+    UNSIGNED64: 'UNSIGNED64', REAL32: 'REAL32', REAL64: 'REAL64',
+    VISIBLE_STRING: 'VISIBLE_STRING', DOMAIN: 'DOMAIN',
 }
 
 #: CiA 402 modes of operation (6060h values) and their bit in 6502h (supported drive modes)
@@ -62,7 +70,7 @@ def type_range(data_type: int) -> tuple[float, float]:
     if code in ('f', 'd') or code is None:
         return float('-inf'), float('inf')
     bits = 8 * struct.calcsize(code)
-    if data_type == odmod.BOOLEAN:
+    if data_type == BOOLEAN:
         return 0, 1
     if code.islower():
         return -(1 << (bits - 1)), (1 << (bits - 1)) - 1
@@ -141,10 +149,11 @@ def lookup(od: canopen.ObjectDictionary, index: int, subindex: int = 0) -> odmod
     An array's sub-indices are only those the file lists (canopen's ``ODArray`` would
     make up any sub-index 1..255 from its first entry).
     """
+    from canopen.objectdictionary import ODVariable
     obj = od.get(index) if index in od else None
     if obj is None:
         return None
-    if isinstance(obj, odmod.ODVariable):
+    if isinstance(obj, ODVariable):
         return obj if subindex == 0 else None
     return obj.subindices.get(subindex)
 
@@ -176,6 +185,7 @@ def _expand_compact_arrays(od: canopen.ObjectDictionary, text: str) -> None:
     sections): ``canopen`` keeps only sub-index 1 as a template. Add sub-indices 2..n made from
     it, so the array has the n entries the file declares (a PDO mapping's capacity, what the
     boot may write)."""
+    from canopen.objectdictionary import ODArray
     parser = configparser.RawConfigParser(inline_comment_prefixes=(';',), strict=False)
     parser.optionxform = str
     try:
@@ -191,7 +201,7 @@ def _expand_compact_arrays(od: canopen.ObjectDictionary, text: str) -> None:
             continue
         index = int(section, 16)
         obj = od.get(index) if index in od else None
-        if not isinstance(obj, odmod.ODArray) or 1 not in obj.subindices:
+        if not isinstance(obj, ODArray) or 1 not in obj.subindices:
             continue
         for sub in range(2, min(n, 254) + 1):
             if sub not in obj.subindices:
@@ -207,6 +217,7 @@ class Dictionary:
     """
 
     def __init__(self, path: str | Path, node_id: int) -> None:
+        import canopen
         self.path = Path(path)
         if not self.path.is_file():
             raise DictionaryReadError(f'EDS/DCF {str(self.path)!r} does not exist')
@@ -250,10 +261,11 @@ class Dictionary:
         """When ``ref`` names sub-index 0 of an array or a record where one variable was
         expected (a drive of several axes that lists 6064h or 607Ah per axis, as the
         ZLAC8015D's file does): what the file has there, for the message; else ``None``."""
+        from canopen.objectdictionary import ODArray, ODVariable
         obj = self.od.get(ref.index) if ref.index in self.od else None
-        if ref.subindex != 0 or obj is None or isinstance(obj, odmod.ODVariable):
+        if ref.subindex != 0 or obj is None or isinstance(obj, ODVariable):
             return None
-        kind = 'an array' if isinstance(obj, odmod.ODArray) else 'a record'
+        kind = 'an array' if isinstance(obj, ODArray) else 'a record'
         subs = sorted(k for k in obj.subindices if k)
         names = ', '.join(f'{ref.index:04X}h:{k} {obj.subindices[k].name!r}' for k in subs[:3])
         return (f'{kind} of {len(subs)} entries ({names}{", ..." if len(subs) > 3 else ""}), '
@@ -304,7 +316,7 @@ class Dictionary:
         if not lo <= value <= hi:
             raise ValueError(f'{value} is outside the range {lo:g}..{hi:g} of {self.describe(ref)} '
                              f'in {self.path.name}')
-        return v.encode_raw(value if v.data_type in (odmod.REAL32, odmod.REAL64) else int(value))
+        return v.encode_raw(value if v.data_type in (REAL32, REAL64) else int(value))
 
     # -- PDOs ------------------------------------------------------------------------------
     def pdo_numbers(self, direction: str) -> list[int]:
@@ -316,8 +328,9 @@ class Dictionary:
         """How many entries the PDO's mapping object holds (its sub-indices 1..n, or sub 0's
         HighLimit when the file gives one and it is lower)."""
         base = 0x1600 if direction == 'rpdo' else 0x1A00
+        from canopen.objectdictionary import ODVariable
         obj = self.od.get(base + number - 1) if base + number - 1 in self.od else None
-        if obj is None or isinstance(obj, odmod.ODVariable):
+        if obj is None or isinstance(obj, ODVariable):
             return 0
         subs = [s for s in obj.subindices if s > 0]
         n = max(subs, default=0)

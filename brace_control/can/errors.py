@@ -6,6 +6,7 @@ Every error of :mod:`brace_control.can` derives from :class:`DriverError`, itsel
     can.CanError
      └── DriverError                      anything the CiA 402 master reports
           ├── DriverInitializationError   bus cannot open, a drive never boots, SDO set-up fails
+          │    └── DictionaryError        a drive's dictionary lacks what the brace needs
           ├── DriverOperationError        a command the master refuses or a drive does not follow
           │    └── FaultLatchedError      refused because a protective stop is latched
           └── DriverTimeoutError          a 402 transition / homing did not finish in time
@@ -14,7 +15,7 @@ from __future__ import annotations
 
 import can
 
-__all__ = ['DriverError', 'DriverInitializationError', 'DriverOperationError',
+__all__ = ['DriverError', 'DriverInitializationError', 'DictionaryError', 'DriverOperationError',
            'FaultLatchedError', 'DriverTimeoutError']
 
 
@@ -24,6 +25,12 @@ class DriverError(can.CanError):
 
 class DriverInitializationError(DriverError, can.CanInitializationError):
     """The bus could not be opened, a drive did not boot (``boot_timeout``) or rejected its set-up."""
+
+
+class DictionaryError(DriverInitializationError):
+    """A drive's object dictionary lacks what the brace needs, or the YAML asks for what the
+    dictionary does not offer (the message lists all of it; nothing was sent). Raised by
+    :mod:`.plan` (``brace_control.can.plan.DictionaryError`` is this class)."""
 
 
 class DriverOperationError(DriverError, can.CanOperationError):

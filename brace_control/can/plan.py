@@ -34,7 +34,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .dictionary import STRUCT_CODES, Dictionary, ObjectRef, type_name
-from .errors import DriverInitializationError
 from .pdo import LOAD_CELL_INPUT, SdoWrite
 
 __all__ = ['DictionaryError', 'PdoEntry', 'PdoLayout', 'PdoSpec', 'BootSettings', 'BootPlan',
@@ -53,9 +52,14 @@ _INVALID = 0x80000000
 _FLAGS = 0x60000000          # bit 30 (no RTR) and bit 29 (29-bit id) of a PDO COB-ID
 
 
-class DictionaryError(DriverInitializationError):
-    """A drive's object dictionary lacks what the brace needs, or the YAML asks for what the
-    dictionary does not offer (the message lists all of it; nothing was sent)."""
+def __getattr__(name: str) -> Any:
+    # DictionaryError lives with the layer's other errors (python-can's classes are its
+    # bases); loaded on first use, so that a node reading a device file's CAN set-up
+    # (every node's start-up check) does not import python-can
+    if name == 'DictionaryError':
+        from .errors import DictionaryError
+        return DictionaryError
+    raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
 
 
 @dataclass(frozen=True)
@@ -630,6 +634,7 @@ def plan_drive(d: Dictionary, s: BootSettings) -> BootPlan:
     rpdos, feedback, feedforward = _plan_pdos(p, s, foreign_velocity)
     if p.missing:
         optional = [f'{r:04X}h' for r in OPTIONAL if not d.exists(ObjectRef(r, 1 if r in (0x1016, 0x60C2) else 0))]
+        from .errors import DictionaryError
         raise DictionaryError(
             f'{who} cannot drive the brace: ' + '; '.join(p.missing)
             + (f' (optional objects it lacks as well: {", ".join(optional)})' if optional else '')
@@ -813,6 +818,7 @@ def plan_module(d: Dictionary, *, node_id: int, objects: Sequence[ObjectRef], tp
     if p.missing or lay is None:
         absent = [o for o in objects if not d.exists(o)]
         found = _analog_inputs(d) if absent else []
+        from .errors import DictionaryError
         raise DictionaryError(f'{who} cannot carry the load cells: ' + '; '.join(
             m.replace(f'can.tpdo.{tpdo}', 'can.load_cell_node') for m in p.missing)
             + (f' (set can.load_cell_node.objects; analog inputs in this dictionary: {", ".join(found)})'

@@ -15,9 +15,8 @@ from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import canopen
 import numpy as np
 
 from ..config import ConfigError, DeviceConfig, as_device_config
@@ -29,6 +28,9 @@ from .supervision import Fault, Limits, Sample
 from .timing import TimingReport
 from .units import (AxisScaling, actuator_kind, counts_ratios, encoder_counts, per_actuator,
                     scaling_from_config)
+
+if TYPE_CHECKING:
+    import canopen
 
 __all__ = ['MasterState', 'MasterConfig', 'LoadCellModule', 'load_cell_source', 'DriveStatus', 'BusStatus', 'MasterStatus',
            'Feedback', 'interpolation_period']

@@ -49,9 +49,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
-
-import can
+from typing import TYPE_CHECKING, Any
 
 from ..config import ConfigError, as_device_config
 from ..safety.force import force_limit as _force_limit
@@ -64,6 +62,9 @@ from ..safety.tracking import position_jump as _position_jump
 from ..safety.verdict import OK as _OK
 from ..schema import release_force, soft_force_limit
 from .units import AxisScaling
+
+if TYPE_CHECKING:
+    import can
 
 __all__ = [
     'FaultKind', 'Fault', 'Warning_', 'Supervisor', 'Limits', 'Sample',
