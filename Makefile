@@ -15,10 +15,12 @@ export MPLBACKEND ?= Agg
 
 venv: $(VENV)/.installed
 
+# --no-compile: Python compiles a module the first time something imports it, not all of
+# every package at install (21 s -> 11 s here: bench/RESULTS.md, "sixth session")
 $(VENV)/.installed: requirements.txt setup.py setup.cfg package.xml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -r requirements.txt
+	$(PY) -m pip install --quiet --no-compile -r requirements.txt
 	$(PY) -m pip install --quiet --no-deps --no-build-isolation -e .
 	touch $@
 
@@ -26,15 +28,14 @@ demo: venv
 	$(PY) -m brace_control.demo --device $(DEVICE) --mode $(MODE) --out demo_output
 
 # pytest exits 5 when it collected no test: that is a failure here, said out loud.
-# Two pytest-xdist workers, a whole file each at a time (--dist loadfile: a module's stack
+# Three pytest-xdist workers, a whole file each at a time (--dist loadfile: a module's stack
 # fixtures stay on one worker), each on its own ROS domain (test/conftest.py); the control
-# cycle runs in its own real-time process (issue 27), so two stacks share two cores.
-# Three workers take 6:16 instead of about 8 min, and half their runs failed a timing test
-# on a loaded host (bench/RESULTS.md, "fifth session"): TEST_WORKERS=3 to try.
+# cycle runs in its own real-time process (issue 27), and a stack waits more than it
+# computes, so three share two cores (bench/RESULTS.md, "fifth session" and "sixth session").
 # --no-loadscope-reorder: the files go out in test/conftest.py's order, the longest first
 # (xdist's own order, the most tests first, left the few-test bring-up files for the end).
 # TEST_WORKERS=0 runs everything in one process; timings: bench/RESULTS.md "Test suite time".
-TEST_WORKERS ?= 2
+TEST_WORKERS ?= 3
 test: venv
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder; rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "make test: pytest collected no tests" >&2; fi; \

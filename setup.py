@@ -12,7 +12,7 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', [f'resource/{package_name}']),
         (f'share/{package_name}', ['package.xml']),
-        (f'share/{package_name}/config', glob('config/*.yaml') + glob('config/*.eds')),
+        (f'share/{package_name}/config', glob('config/*.yaml') + glob('config/*.eds') + glob('config/*.xml')),
         (f'share/{package_name}/launch', glob('launch/*.launch.py')),
     ],
     package_data={package_name: ['py.typed']},

@@ -1099,6 +1099,8 @@ def _run_ros(args: argparse.Namespace, ros_args: list[str]) -> int:
 
     from .nodes.spin import spin_once
 
+    from .nodes.dds import use_discovery_profile
+    use_discovery_profile()
     rclpy.init(args=['brace-bag', *ros_args])
     node = rclpy.create_node('brace_bag')
     stop = threading.Event()

@@ -569,6 +569,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f'brace-bringup: configuration error: {exc}', file=sys.stderr)
         return 2
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    from .nodes.dds import use_discovery_profile
+    use_discovery_profile()                   # this process's participant and the nodes'
     import rclpy
     from rclpy.signals import SignalHandlerOptions
     rclpy.init(args=['brace-bringup'], signal_handler_options=SignalHandlerOptions.NO)

@@ -45,6 +45,7 @@ import numpy as np
 from .demo_session import (RECORDED_TOPICS, end_session, find_service, home_and_enable, launch_recorder,
                            prepare_config, wait_recording)
 from .nodes import topics
+from .nodes.dds import use_discovery_profile
 from .nodes.spin import BackgroundSpinner
 
 __all__ = ['main', 'prepare_config', 'RECORDED_TOPICS']
@@ -140,6 +141,7 @@ def run_demo(device: str, out: Path, *, rate: float = 1.0, settle: float = 3.0,
     print(f'exercise: {len(goals)} goals over {goals[-1].t:.0f} s -> {bag}')
 
     stop = threading.Event()
+    use_discovery_profile()
     rclpy.init(args=['brace-demo'], signal_handler_options=SignalHandlerOptions.NO)
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGTERM, lambda *_: stop.set())

@@ -43,6 +43,7 @@ from typing import Any
 
 import numpy as np
 
+from .nodes.dds import use_discovery_profile
 from .nodes.spin import BackgroundSpinner
 from .nodes import topics
 
@@ -425,6 +426,7 @@ def run_interaction_demo(device: str, out: Path, *, processes: bool = True,
     extra = [*extra_args, '-p', 'sim.truth_rate_hz:=100.0']
 
     stop = threading.Event()
+    use_discovery_profile()
     rclpy.init(args=['brace-demo'], signal_handler_options=SignalHandlerOptions.NO)
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGTERM, lambda *_: stop.set())

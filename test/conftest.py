@@ -10,7 +10,7 @@ import pytest
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 
 
-#: consecutive ROS domains a run reserves: one per pytest-xdist worker (make test runs two)
+#: consecutive ROS domains a run reserves: one per pytest-xdist worker (make test runs three)
 DOMAIN_BLOCK = 8
 #: where a run's reservation lives: one lock file per domain id, locked (flock) by the run's
 #: first process for as long as it runs; the kernel drops a lock when its holder ends, however
@@ -69,6 +69,14 @@ def _domain_id() -> str:
 
 
 os.environ['ROS_DOMAIN_ID'] = _domain_id()
+
+# the participants the tests make (probes, in-process stacks) announce themselves as the
+# package's entry points do (brace_control.nodes.dds): a probe or a node started beside a
+# running stack is found in its first two seconds, not at the next periodic announcement
+# (3 s later); the processes a test starts inherit it
+from brace_control.nodes.dds import use_discovery_profile  # noqa: E402
+
+use_discovery_profile()
 
 # Property tests run the same examples on every run (derandomized, no example database):
 # a suite that passes or fails by the draw is not deterministic. ``HYPOTHESIS_PROFILE=explore``

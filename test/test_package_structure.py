@@ -4,6 +4,7 @@ one list of the nodes that every copy follows."""
 from __future__ import annotations
 
 import ast
+import os
 import re
 from pathlib import Path
 
@@ -162,3 +163,78 @@ def test_a_node_that_needs_only_the_units_does_not_load_the_master():
     assert 'brace_control.can.units' in loaded
     for heavy in ('brace_control.can.master', 'brace_control.can.cycle', 'brace_control.can.boot'):
         assert f"'{heavy}'" not in loaded, loaded
+
+
+def test_a_node_checking_a_device_file_loads_neither_canopen_nor_python_can():
+    """Every node checks the whole device file at its start, its CAN set-up included
+    (``MasterConfig.from_device_config``). That reads no dictionary and opens no bus, so the
+    nodes other than the driver do not pay canopen's and python-can's import (about 65 ms of
+    CPU each, four of them per stack). The driver's path still has them: reading a
+    dictionary loads canopen, and a dictionary error is python-can's kind of error."""
+    import subprocess
+    import sys
+    code = ('import sys\n'
+            'import brace_control.nodes.kinetics_node, brace_control.nodes.trajectory_node, '
+            'brace_control.nodes.ik_node, brace_control.nodes.interaction_node\n'
+            'from brace_control.checks import check_device\n'
+            'from brace_control.config import load_device_config\n'
+            'for name in ("lumbar_brace", "shoulder", "neck_brace_4rpr", "upper_limb_trainer"):\n'
+            '    check_device(load_device_config(name))\n'
+            'print(sorted(m for m in ("can", "canopen") if m in sys.modules))\n'
+            'from brace_control.can.dictionary import Dictionary\n'
+            'from brace_control.config import config_dir\n'
+            'Dictionary(config_dir() / "lumbar_drive.eds", node_id=1)\n'
+            'from brace_control.can.plan import DictionaryError\n'
+            'print(sorted(m for m in ("can", "canopen") if m in sys.modules), DictionaryError.__mro__[1].__name__)\n')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=60,
+                         check=False)
+    assert out.returncode == 0, out.stderr[-2000:]
+    checked, read = out.stdout.strip().splitlines()[-2:]
+    assert checked == '[]', checked
+    assert read == "['can', 'canopen'] DriverInitializationError", read
+
+
+def test_the_dictionarys_data_type_codes_are_canopens():
+    """The CiA 301 data type indices :mod:`brace_control.can.dictionary` names itself (so
+    that it need not import canopen) are those canopen reads from an EDS."""
+    from canopen import objectdictionary as od
+
+    from brace_control.can import dictionary, errors, plan
+    names = ('BOOLEAN', 'INTEGER8', 'INTEGER16', 'INTEGER24', 'INTEGER32', 'INTEGER64', 'UNSIGNED8',
+             'UNSIGNED16', 'UNSIGNED24', 'UNSIGNED32', 'UNSIGNED64', 'REAL32', 'REAL64',
+             'VISIBLE_STRING', 'DOMAIN')
+    assert {n: getattr(dictionary, n) for n in names} == {n: getattr(od, n) for n in names}
+    assert {dictionary.type_name(getattr(od, n)) for n in names} == set(names)
+    assert plan.DictionaryError is errors.DictionaryError
+    import can
+    assert issubclass(plan.DictionaryError, can.CanInitializationError)
+
+
+def test_the_discovery_profile_is_taken_unless_the_user_has_one():
+    """``use_discovery_profile`` points both Fast DDS variables (3.x and 2.x) at the
+    package's profile, leaves a user's own profile and another RMW alone, and the Fast DDS
+    this package runs on reads the file without an XML error."""
+    import subprocess
+    import sys
+
+    from brace_control.config import config_dir
+    from brace_control.nodes.dds import PROFILE_VARIABLES, use_discovery_profile
+    ours = str(config_dir() / 'fastdds_discovery.xml')
+    env: dict[str, str] = {}
+    assert use_discovery_profile(env) == ours
+    assert env == dict.fromkeys(PROFILE_VARIABLES, ours)
+    env = {'RMW_IMPLEMENTATION': 'rmw_fastrtps_dynamic_cpp'}
+    assert use_discovery_profile(env) == ours and env['FASTDDS_DEFAULT_PROFILES_FILE'] == ours
+    for name in PROFILE_VARIABLES:
+        env = {name: '/home/lab/my_profile.xml'}
+        assert use_discovery_profile(env) is None and env == {name: '/home/lab/my_profile.xml'}
+    env = {'RMW_IMPLEMENTATION': 'rmw_cyclonedds_cpp'}
+    assert use_discovery_profile(env) is None and list(env) == ['RMW_IMPLEMENTATION']
+    code = ('import rclpy\nrclpy.init()\nnode = rclpy.create_node("profile_probe")\n'
+            'node.destroy_node()\nrclpy.shutdown()\nprint("participant made")\n')
+    run_env = {k: v for k, v in os.environ.items() if k not in PROFILE_VARIABLES}
+    use_discovery_profile(run_env)
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=60,
+                         env=run_env, check=False)
+    assert out.returncode == 0 and 'participant made' in out.stdout, out.stderr[-2000:]
+    assert 'XMLPARSER' not in out.stderr and 'Error' not in out.stderr, out.stderr[-2000:]

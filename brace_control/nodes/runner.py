@@ -44,6 +44,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
 from ..config import ConfigError, load_device_config
+from .dds import use_discovery_profile
 from .spin import spin_once
 
 __all__ = ['run_node', 'usage', 'make_executor', 'freeze_start_up_heap', 'watch_parent',
@@ -272,6 +273,7 @@ def run_node(factory: Callable[[], Node], *, executable: str, summary: str,
     except ConfigError as exc:
         print(f'{executable}: configuration error: {exc}', file=sys.stderr)
         return EXIT_CONFIG
+    use_discovery_profile()
     try:
         rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     except Exception as exc:  # noqa: BLE001 - rcl reports bad --ros-args as RCLError

@@ -1,0 +1,48 @@
+"""Fast DDS discovery that does not wait for the periodic announcement.
+
+A participant Fast DDS creates announces itself 5 times, 100 ms apart, then every 3 s. On
+this project's stacks (five node processes, a bring-up's or a test's probe) a new node was
+sometimes missed by its initial announcements and found by the next periodic one:
+a service created beside five running participants was seen 2.8-3.3 s after its creation in
+2 of 6 tries, and a five-process bring-up took 4.5-5.0 s to be ready (bench/RESULTS.md,
+"sixth session"). :data:`PROFILE_FILE` (``config/fastdds_discovery.xml``) raises the initial
+announcements to 20 over 2 s and announces every second after them (the measurements are in
+the file); nothing else of the participant changes.
+
+:func:`use_discovery_profile` points Fast DDS at it, in the process's environment (so the
+process itself and every process it starts read it), unless the user chose a profile of
+their own or another RMW. Every entry point calls it before ``rclpy.init``.
+"""
+from __future__ import annotations
+
+import os
+from collections.abc import MutableMapping
+
+__all__ = ['PROFILE_FILE', 'PROFILE_VARIABLES', 'use_discovery_profile']
+
+#: the profile, in the package's config directory
+PROFILE_FILE = 'fastdds_discovery.xml'
+
+#: where Fast DDS looks for a profile file: 3.x (Kilted) reads the first, 2.x (Humble,
+#: Jazzy) the second
+PROFILE_VARIABLES = ('FASTDDS_DEFAULT_PROFILES_FILE', 'FASTRTPS_DEFAULT_PROFILES_FILE')
+
+
+def use_discovery_profile(environ: MutableMapping[str, str] | None = None) -> str | None:
+    """Set :data:`PROFILE_VARIABLES` to :data:`PROFILE_FILE` in ``environ`` (default: this
+    process's) and return its path; ``None`` (nothing set) when either variable is already
+    set (the user's profile wins), when ``RMW_IMPLEMENTATION`` names another middleware than
+    Fast DDS, or when the file is missing."""
+    env = os.environ if environ is None else environ
+    if any(env.get(name) for name in PROFILE_VARIABLES):
+        return None
+    rmw = env.get('RMW_IMPLEMENTATION', '')
+    if rmw and not rmw.startswith('rmw_fastrtps'):
+        return None
+    from ..config import config_dir
+    path = config_dir() / PROFILE_FILE
+    if not path.is_file():
+        return None
+    for name in PROFILE_VARIABLES:
+        env[name] = str(path)
+    return str(path)
