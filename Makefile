@@ -15,13 +15,16 @@ export MPLBACKEND ?= Agg
 
 venv: $(VENV)/.installed
 
-# --no-compile: Python compiles a module the first time something imports it, not all of
-# every package at install (21 s -> 11 s here: bench/RESULTS.md, "sixth session")
+# The package is byte-compiled at install, as pip compiles what it installs: with
+# PYTHONDONTWRITEBYTECODE set (this machine sets it) every process would otherwise compile
+# every module it imports, each time (a node's start: 0.40 -> 0.30 s of CPU; bench/RESULTS.md,
+# "sixth session").
 $(VENV)/.installed: requirements.txt setup.py setup.cfg package.xml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet --no-compile -r requirements.txt
+	$(PY) -m pip install --quiet -r requirements.txt
 	$(PY) -m pip install --quiet --no-deps --no-build-isolation -e .
+	$(PY) -m compileall -q brace_control
 	touch $@
 
 demo: venv
