@@ -133,20 +133,27 @@ def test_boot_configures_three_drives_and_enables_them(rig):
 def test_sync_and_pdos_on_the_bus_at_the_control_rate(rig):
     """A passive listener on the channel sees SYNC at 500 Hz, at rest an RPDO1 per drive every
     50 SYNCs (every SYNC while moving: the trajectory tests below see one per SYNC), one TPDO1
-    per drive per SYNC, and the master's heartbeat every 100 ms."""
+    per drive per SYNC, and the master's heartbeat every 100 ms.
+
+    A SYNC the master could not send on time (this test's process starved by a loaded host:
+    the master in it runs at normal scheduling) is skipped and counted as an overrun, never
+    sent late in silence: the 250 periods plus the overruns counted meanwhile span the
+    time the bus saw."""
     sim, master = rig
     tap = can.Bus(interface='virtual', channel=sim.channel)
     monitor = BusMonitor([1, 2, 3], master.scaling)
     sync, hb = _Stamps(0x80), _Stamps(0x77F)
     notifier = can.Notifier(tap, [monitor, sync, hb])
+    overruns = master.stats.overruns
     try:
         # 250 SYNC periods (0.5 s at 500 Hz), timed by the frames' own bus timestamps
-        wait_for(lambda: len(sync.stamps) > 250, 2.0, '251 SYNCs on the bus')
+        wait_for(lambda: len(sync.stamps) > 250, 4.0, '251 SYNCs on the bus')
+        missed = master.stats.overruns - overruns          # counted up to here: an upper bound
     finally:
         notifier.stop()
         tap.shutdown()
     first, last = sync.stamps[0], sync.stamps[250]
-    assert 250 / (1.05 * 500) <= last - first <= 250 / (0.8 * 500)     # 400 .. 525 Hz
+    assert 250 / (1.05 * 500) <= last - first <= (250 + missed) / (0.8 * 500), missed   # 400 .. 525 Hz
     syncs = monitor.syncs
     for rec in monitor.drives.values():
         # at rest an RPDO1 goes out every 50 SYNCs (its content unchanged); a TPDO1 answers each

@@ -211,9 +211,10 @@ def test_the_dictionarys_data_type_codes_are_canopens():
 
 
 def test_the_discovery_profile_is_taken_unless_the_user_has_one():
-    """``use_discovery_profile`` points both Fast DDS variables (3.x and 2.x) at the
-    package's profile, leaves a user's own profile and another RMW alone, and the Fast DDS
-    this package runs on reads the file without an XML error."""
+    """``use_discovery_profile`` points Fast DDS 3's variable at the package's profile, and
+    Fast DDS 2's too on Humble, Iron and Jazzy (Kilted's RMW warns at every participant when
+    that one is set); it leaves a user's own profile and another RMW alone; and the Fast DDS
+    this package runs on reads the file without an XML error or a warning."""
     import subprocess
     import sys
 
@@ -222,7 +223,11 @@ def test_the_discovery_profile_is_taken_unless_the_user_has_one():
     ours = str(config_dir() / 'fastdds_discovery.xml')
     env: dict[str, str] = {}
     assert use_discovery_profile(env) == ours
-    assert env == dict.fromkeys(PROFILE_VARIABLES, ours)
+    assert env == {'FASTDDS_DEFAULT_PROFILES_FILE': ours}
+    for distro in ('humble', 'jazzy'):
+        env = {'ROS_DISTRO': distro}
+        assert use_discovery_profile(env) == ours
+        assert env == {'ROS_DISTRO': distro, **dict.fromkeys(PROFILE_VARIABLES, ours)}
     env = {'RMW_IMPLEMENTATION': 'rmw_fastrtps_dynamic_cpp'}
     assert use_discovery_profile(env) == ours and env['FASTDDS_DEFAULT_PROFILES_FILE'] == ours
     for name in PROFILE_VARIABLES:
@@ -238,3 +243,4 @@ def test_the_discovery_profile_is_taken_unless_the_user_has_one():
                          env=run_env, check=False)
     assert out.returncode == 0 and 'participant made' in out.stdout, out.stderr[-2000:]
     assert 'XMLPARSER' not in out.stderr and 'Error' not in out.stderr, out.stderr[-2000:]
+    assert 'WARN' not in out.stderr, out.stderr[-2000:]

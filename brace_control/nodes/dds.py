@@ -18,21 +18,27 @@ from __future__ import annotations
 import os
 from collections.abc import MutableMapping
 
-__all__ = ['PROFILE_FILE', 'PROFILE_VARIABLES', 'use_discovery_profile']
+__all__ = ['FAST_DDS_2_DISTROS', 'PROFILE_FILE', 'PROFILE_VARIABLES', 'use_discovery_profile']
 
 #: the profile, in the package's config directory
 PROFILE_FILE = 'fastdds_discovery.xml'
 
 #: where Fast DDS looks for a profile file: 3.x (Kilted) reads the first, 2.x (Humble,
-#: Jazzy) the second
+#: Jazzy) the second; Kilted's RMW warns at every participant when the second is set
 PROFILE_VARIABLES = ('FASTDDS_DEFAULT_PROFILES_FILE', 'FASTRTPS_DEFAULT_PROFILES_FILE')
+
+#: the distributions whose Fast DDS (2.x) reads only ``FASTRTPS_DEFAULT_PROFILES_FILE``
+#: (``ROS_DISTRO``, set by their ``setup.bash``; unset, as with the PyPI wheels: Kilted)
+FAST_DDS_2_DISTROS = ('humble', 'iron', 'jazzy')
 
 
 def use_discovery_profile(environ: MutableMapping[str, str] | None = None) -> str | None:
-    """Set :data:`PROFILE_VARIABLES` to :data:`PROFILE_FILE` in ``environ`` (default: this
-    process's) and return its path; ``None`` (nothing set) when either variable is already
-    set (the user's profile wins), when ``RMW_IMPLEMENTATION`` names another middleware than
-    Fast DDS, or when the file is missing."""
+    """Point Fast DDS at :data:`PROFILE_FILE` in ``environ`` (default: this process's) and
+    return its path: ``FASTDDS_DEFAULT_PROFILES_FILE``, and on a distribution of
+    :data:`FAST_DDS_2_DISTROS` also ``FASTRTPS_DEFAULT_PROFILES_FILE``. ``None`` (nothing
+    set) when either variable is already set (the user's profile wins), when
+    ``RMW_IMPLEMENTATION`` names another middleware than Fast DDS, or when the file is
+    missing."""
     env = os.environ if environ is None else environ
     if any(env.get(name) for name in PROFILE_VARIABLES):
         return None
@@ -43,6 +49,7 @@ def use_discovery_profile(environ: MutableMapping[str, str] | None = None) -> st
     path = config_dir() / PROFILE_FILE
     if not path.is_file():
         return None
-    for name in PROFILE_VARIABLES:
-        env[name] = str(path)
+    env[PROFILE_VARIABLES[0]] = str(path)
+    if env.get('ROS_DISTRO', '').strip().lower() in FAST_DDS_2_DISTROS:
+        env[PROFILE_VARIABLES[1]] = str(path)
     return str(path)
