@@ -4,6 +4,7 @@ The environment is set before anything imports rclpy, so every node, and every s
 test starts, inherits it.
 """
 import os
+import threading
 
 import pytest
 
@@ -291,6 +292,61 @@ def _frozen_heap(item) -> None:
         gc.unfreeze()
     gc.collect()
     gc.freeze()
+
+
+#: SCHED_FIFO priority of a test's threads once it runs a control cycle or simulated drives
+#: in this process: below the cycle processes' ``can.cycle_priority`` (50), above every
+#: normally scheduled process
+IN_PROCESS_CYCLE_PRIORITY = 40
+#: the interpreter's switch interval meanwhile, as the cycle process sets it
+#: (``can.gil_switch_interval_us``)
+IN_PROCESS_SWITCH_INTERVAL_S = 200e-6
+
+
+@pytest.fixture(autouse=True)
+def _in_process_cycle_as_the_cycle_process_runs(monkeypatch):
+    """A test that runs a master (``BraceMaster``) or simulated drives (``SimulatedBrace``)
+    in this process gets them scheduled as ``can_driver_node``'s cycle process schedules
+    its own (docs/can.md, "Scheduling"): every thread at SCHED_FIFO, the interpreter's
+    switch interval at 200 us. The threads they start take the priority of the thread
+    that starts them: the test's thread is raised before either is made, and set back
+    to normal scheduling when the test ends.
+
+    Without it the drives' heartbeats, the SYNC and the test's own setpoint stream ran
+    at normal scheduling beside the other workers' stacks, whose cycle processes run at
+    SCHED_FIFO 50: a loaded host tripped the drives' heartbeat consumers (EMCY 8130h),
+    slowed the SYNC below 400 Hz or stalled a stream, each in a different test
+    (bench/RESULTS.md, fifth and sixth sessions). Where SCHED_FIFO is refused (no
+    CAP_SYS_NICE) the test runs as before."""
+    import sys
+    raised: list[float] = []
+
+    def raise_priority() -> None:
+        if raised or threading.current_thread() is not threading.main_thread():
+            return
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(IN_PROCESS_CYCLE_PRIORITY))
+        except (AttributeError, OSError):
+            return
+        raised.append(sys.getswitchinterval())
+        sys.setswitchinterval(IN_PROCESS_SWITCH_INTERVAL_S)
+
+    def wrap(cls: type) -> None:
+        init = cls.__init__
+
+        def __init__(self, *args, **kwargs):
+            raise_priority()
+            init(self, *args, **kwargs)
+        monkeypatch.setattr(cls, '__init__', __init__)
+
+    from brace_control.can.master import BraceMaster
+    from brace_control.sim.brace import SimulatedBrace
+    wrap(BraceMaster)
+    wrap(SimulatedBrace)
+    yield
+    if raised:
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+        sys.setswitchinterval(raised[0])
 
 
 @pytest.hookimpl(hookwrapper=True)
