@@ -141,25 +141,34 @@ def test_one_node_list_followed_by_setup_launch_and_readme():
     assert counted and set(counted) == {words[len(NODE_NAMES)]}, counted
 
 
+#: the four nodes other than the driver, imported
+NODE_IMPORTS = ('import brace_control.nodes.kinetics_node, brace_control.nodes.trajectory_node, '
+                'brace_control.nodes.ik_node, brace_control.nodes.interaction_node')
+
+
+def _python_lines(code: str) -> list[str]:
+    """What a fresh interpreter running ``code`` prints, line by line (it must succeed)."""
+    import subprocess
+    import sys
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=60,
+                         check=False)
+    assert out.returncode == 0, out.stderr[-2000:]
+    return out.stdout.strip().splitlines()
+
+
 def test_a_node_that_needs_only_the_units_does_not_load_the_master():
     """``brace_control.can`` loads its names on first use (PEP 562): kinetics_node and
     trajectory_node import ``can.units``, and every node's configuration check reads
     ``can.state``; none of them loads the master (with canopen's network and the cycle),
     0.3-0.4 s of CPU at each start before. The package's names still all resolve."""
-    import subprocess
-    import sys
     code = ('import sys\n'
-            'import brace_control.nodes.kinetics_node, brace_control.nodes.trajectory_node, '
-            'brace_control.nodes.ik_node, brace_control.nodes.interaction_node\n'
+            f'{NODE_IMPORTS}\n'
             'from brace_control.can.units import scaling_from_config\n'
             'print(sorted(m for m in sys.modules if m.startswith("brace_control.can.")))\n'
             'import brace_control.can as can\n'
             'assert all(getattr(can, n) is not None for n in can.__all__)\n'
             'assert can.CiA402Master is can.BraceMaster\n')
-    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=60,
-                         check=False)
-    assert out.returncode == 0, out.stderr[-2000:]
-    loaded = out.stdout.strip().splitlines()[0]
+    loaded = _python_lines(code)[0]
     assert 'brace_control.can.units' in loaded
     for heavy in ('brace_control.can.master', 'brace_control.can.cycle', 'brace_control.can.boot'):
         assert f"'{heavy}'" not in loaded, loaded
@@ -171,11 +180,8 @@ def test_a_node_checking_a_device_file_loads_neither_canopen_nor_python_can():
     nodes other than the driver do not pay canopen's and python-can's import (about 65 ms of
     CPU each, four of them per stack). The driver's path still has them: reading a
     dictionary loads canopen, and a dictionary error is python-can's kind of error."""
-    import subprocess
-    import sys
     code = ('import sys\n'
-            'import brace_control.nodes.kinetics_node, brace_control.nodes.trajectory_node, '
-            'brace_control.nodes.ik_node, brace_control.nodes.interaction_node\n'
+            f'{NODE_IMPORTS}\n'
             'from brace_control.checks import check_device\n'
             'from brace_control.config import load_device_config\n'
             'for name in ("lumbar_brace", "shoulder", "neck_brace_4rpr", "upper_limb_trainer"):\n'
@@ -186,10 +192,7 @@ def test_a_node_checking_a_device_file_loads_neither_canopen_nor_python_can():
             'Dictionary(config_dir() / "lumbar_drive.eds", node_id=1)\n'
             'from brace_control.can.plan import DictionaryError\n'
             'print(sorted(m for m in ("can", "canopen") if m in sys.modules), DictionaryError.__mro__[1].__name__)\n')
-    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=60,
-                         check=False)
-    assert out.returncode == 0, out.stderr[-2000:]
-    checked, read = out.stdout.strip().splitlines()[-2:]
+    checked, read = _python_lines(code)[-2:]
     assert checked == '[]', checked
     assert read == "['can', 'canopen'] DriverInitializationError", read
 
