@@ -427,6 +427,9 @@ class MasterProcess:
                       f'the control cycle process {ended_how(code)}' if code is not None
                       else f'the control cycle process stopped answering ({exc!r})')
         except Exception as exc:  # noqa: BLE001 - an unreadable message: the link is lost
+            if self._closing:             # closed under the reader (close() gave up waiting)
+                self._end('the control cycle process was closed')
+                return
             self._end(f'the control cycle process link broke: {exc!r}')
             log.exception('reading the control cycle process')
 
@@ -653,6 +656,11 @@ class MasterProcess:
                 except subprocess.TimeoutExpired:
                     self._proc.kill()
                     self._proc.wait()
+        # the reader first: the child's end is closed, so it reads end-of-file and ends. A
+        # link closed under a reader still in recv_bytes made it fail in multiprocessing's
+        # own code (TypeError: the handle None), logged as a broken link at every shutdown
+        # that lost the race (fresh-clone run 605)
+        self._reader.join(timeout=EXIT_TIMEOUT_S)
         try:
             self._conn.close()
         except OSError:
