@@ -288,7 +288,10 @@ def test_pdo_remapping_by_sdo_changes_what_the_pdos_carry(rig: Rig) -> None:
     assert all(len(m.data) == 7 for m in t1)           # U16 + I32 + I8
     assert t1[-1].data[6] == 8                           # 6061h: CSP
     assert node.tpdo[1]['Modes of operation display'].raw == 8
-    t2 = [m for m in rig.rec.frames[since:] if m.arbitration_id == 0x282]
+    # every 2nd SYNC: two in four. The 4th SYNC's TPDO2 may be recorded just after its TPDO1
+    # (waited for above); had TPDO2 gone out at every SYNC, those of the first three, sent
+    # before the 4th TPDO1, would already be here: three or four
+    t2 = rig.rec.wait(cob(0x282), since=since, count=2)
     assert len(t2) == 2 and all(len(m.data) == 6 for m in t2)
     # the re-mapped RPDO1 (6040h U16 + 6060h I8) switches the mode on the next SYNC
     rig.net.send_message(0x202, struct.pack('<Hb', 0x06, 6))
