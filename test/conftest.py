@@ -11,7 +11,7 @@ import pytest
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 
 
-#: consecutive ROS domains a run reserves: one per pytest-xdist worker (make test runs three)
+#: consecutive ROS domains a run reserves: one per pytest-xdist worker (make test runs four)
 DOMAIN_BLOCK = 8
 #: where a run's reservation lives: one lock file per domain id, locked (flock) by the run's
 #: first process for as long as it runs; the kernel drops a lock when its holder ends, however
