@@ -271,3 +271,42 @@ def test_a_stream_ahead_of_the_simulated_clock_catches_up_at_a_bounded_rate() ->
     # segment in play (up to two intervals), and not growing
     assert max(lags[-400:]) <= REST_STREAM_DELAY_S + 0.05 + 0.04 + 1e-6
     assert max(lags[-400:]) <= max(lags[-800:-400]) + 1e-6
+
+
+def test_the_trunk_path_is_read_while_a_stream_adds_to_it() -> None:
+    """The physics reads the trunk's path (``body_at``, the SYNC's thread) while a stream
+    adds samples to it (``set_rest_pose``, the subscriber's thread): no read fails because
+    the path changed under it. The interpreter switches threads every microsecond here, so
+    a read that iterates the path while it grows meets a change within a few hundred tries;
+    it did in a full test run ("deque mutated during iteration": one SYNC without physics)."""
+    import sys
+    import threading
+    brace, params = lumbar()
+    rest0 = np.asarray(params['sim']['rest_pose'])
+    errors: list[BaseException] = []
+    stop = threading.Event()
+
+    def stream() -> None:                       # a 100 Hz trunk stream on the simulated clock
+        k = 0
+        while not stop.is_set():
+            k += 1
+            brace.set_rest_pose(rest0 + np.array([0.0, 1e-5 * (k % 100), 0.0]), stamp=0.002 * k)
+
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)
+    streamer = threading.Thread(target=stream, daemon=True)
+    streamer.start()
+    try:
+        for i in range(20000):
+            try:
+                brace.body_at(brace.truth().time + 0.002 * (i % 50))
+                if i % 10 == 0:
+                    run(brace, 1)                 # the simulated clock on (the path pruned)
+            except RuntimeError as exc:
+                errors.append(exc)
+                break
+    finally:
+        stop.set()
+        streamer.join(timeout=5.0)
+        sys.setswitchinterval(interval)
+    assert not errors, errors

@@ -78,7 +78,6 @@ Example::
 """
 from __future__ import annotations
 
-import itertools
 import math
 import operator
 import threading
@@ -532,12 +531,17 @@ class SimulatedBrace:
 
     def _streamed_rest(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """The base rest pose at simulated time ``t`` and its rate: on the trunk's path of
-        streamed samples (:meth:`set_rest_pose`), else the last sample."""
-        track = self._rest_track
+        streamed samples (:meth:`set_rest_pose`), else the last sample.
+
+        Read in the SYNC's thread while :meth:`set_rest_pose` appends in the stream's: the
+        path is read from a copy (one C call under the interpreter lock, as the deque's own
+        methods are), not iterated while another thread changes it ("deque mutated during
+        iteration" stopped the physics of one SYNC in a full test run)."""
+        track = tuple(self._rest_track)
         t1, p1 = track[-1]
         if t >= t1:
             return p1.copy(), np.zeros(self.dof)
-        for (ta, pa), (tb, pb) in zip(track, itertools.islice(track, 1, None)):
+        for (ta, pa), (tb, pb) in zip(track, track[1:]):
             if t < tb:
                 if t < ta:
                     return pa.copy(), np.zeros(self.dof)
