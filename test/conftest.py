@@ -319,14 +319,14 @@ def _in_process_cycle_as_the_cycle_process_runs(monkeypatch):
     (bench/RESULTS.md, fifth and sixth sessions). Where SCHED_FIFO is refused (no
     CAP_SYS_NICE) the test runs as before."""
     import sys
+
+    from brace_control.can.cycle import set_thread_priority
     raised: list[float] = []
 
     def raise_priority() -> None:
         if raised or threading.current_thread() is not threading.main_thread():
             return
-        try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(IN_PROCESS_CYCLE_PRIORITY))
-        except (AttributeError, OSError):
+        if not set_thread_priority(IN_PROCESS_CYCLE_PRIORITY):   # the SYNC thread's own call
             return
         raised.append(sys.getswitchinterval())
         sys.setswitchinterval(IN_PROCESS_SWITCH_INTERVAL_S)

@@ -135,8 +135,8 @@ def test_sync_and_pdos_on_the_bus_at_the_control_rate(rig):
     50 SYNCs (every SYNC while moving: the trajectory tests below see one per SYNC), one TPDO1
     per drive per SYNC, and the master's heartbeat every 100 ms.
 
-    A SYNC the master could not send on time (this test's process starved by a loaded host:
-    the master in it runs at normal scheduling) is skipped and counted as an overrun, never
+    A SYNC the master could not send on time (this test's process starved by a loaded host,
+    or refused SCHED_FIFO: test/conftest.py) is skipped and counted as an overrun, never
     sent late in silence: the 250 periods plus the overruns counted meanwhile span the
     time the bus saw."""
     sim, master = rig
