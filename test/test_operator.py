@@ -60,6 +60,9 @@ DRIVER = '/can_driver_node'
 #: each statically feasible under the YAML's body along the straight path from any other
 SAFE_GOALS = (np.array([0.0, 0.396, 6.5 * DEG]), np.array([0.0, 0.386, 5.5 * DEG]),
               np.array([0.0, 0.400, 7.0 * DEG]), np.array([0.0, 0.390, 5.0 * DEG]))
+#: s: the cancelled move's duration: 20 mm at up to 15 mm/s (minimum jerk), which stops in
+#: about 1.4 mm at the planner's deceleration; a cancel 0.5 s late still rests 5 mm short
+CANCEL_MOVE_S = 2.5
 #: m: the true actuators "do not move": peak-to-peak of the true lengths (the simulator's
 #: position loop holds to a fraction of an encoder count, 0.12 um)
 STILL = 2e-6
@@ -142,12 +145,18 @@ class Operator:
         self.sent += 1
         return str(self.sent)
 
-    def path(self, poses: Sequence[Sequence[float]]) -> str:
-        """Send a ``nav_msgs/Path`` (no timing: all stamps zero); its goal id."""
+    def path(self, poses: Sequence[Sequence[float]], times: Sequence[float] | None = None) -> str:
+        """Send a ``nav_msgs/Path``; its goal id. ``times``: each pose's arrival time (s)
+        from the start of the motion (relative stamps, header 0); None: no timing (all
+        stamps zero, Fitts' law)."""
         msg = PathMsg()
         msg.header.frame_id = 'brace_base'
-        msg.header.stamp = self.node.get_clock().now().to_msg()
         msg.poses = [pose_msg(p, frame_id='brace_base', kind='planar') for p in poses]
+        if times is None:
+            msg.header.stamp = self.node.get_clock().now().to_msg()
+        else:
+            for m, t in zip(msg.poses, times, strict=True):
+                m.header.stamp = ns_to_stamp(round(t * 1e9))
         self.wait_matched(self.path_pub, 'the trajectory node on /brace/pose_path')
         self.path_pub.publish(msg)
         self.sent += 1
@@ -542,11 +551,14 @@ def test_cancel_mid_goal_decelerates_short_of_the_goal(op):
     to rest short of the goal, never past it; then a safe goal succeeds. (From a known
     start, 20 mm from the goal: from wherever the previous test left the ring the move was
     as short as 4 mm, and a cancel that a loaded host delivered 0.1 s late came after the
-    motion could still stop short.)"""
+    motion could still stop short. Timed, ``CANCEL_MOVE_S``: on Fitts' time, 0.8 s, the
+    ring passed 47 mm/s and needed 11 mm to stop at the planner's deceleration, so a cancel
+    the test's process sent 0.2 s late on a busy host left it 1.5 mm short, inside the
+    goal's tolerance.)"""
     op.goal_succeeds(np.array([0.0, 0.385, op.dev.home[2]]))
     start = op.true_lengths()
     target = np.array([0.0, 0.405, op.dev.home[2]])
-    gid = op.goal(target)
+    gid = op.path([target], times=[CANCEL_MOVE_S])
     op.wait_travel(start, target, 0.3)
     ok, msg = op.call('/trajectory_node/cancel')
     cancelled_at = op.now_ns()
