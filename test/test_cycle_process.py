@@ -303,8 +303,8 @@ def test_the_cycle_trace_records_every_sync_and_each_goals_arrival_in_the_child(
     mp = enabled
     assert mp.take_cycle_trace() == {'cycles': [], 'commands': [], 'goals': []}
     period = 1.0 / float(CFG['can']['sync_rate_hz'])
+    t0 = time.time()            # before the call: the child may trace a cycle before its reply comes back
     mp.trace_cycles(True)
-    t0 = time.time()
     time.sleep(0.3)
     with pytest.raises(ValueError, match='no interaction is running'):
         mp.set_interaction_goal([0.0, 5.0, 0.0])

@@ -60,9 +60,10 @@ DRIVER = '/can_driver_node'
 #: each statically feasible under the YAML's body along the straight path from any other
 SAFE_GOALS = (np.array([0.0, 0.396, 6.5 * DEG]), np.array([0.0, 0.386, 5.5 * DEG]),
               np.array([0.0, 0.400, 7.0 * DEG]), np.array([0.0, 0.390, 5.0 * DEG]))
-#: s: the cancelled move's duration: 20 mm at up to 15 mm/s (minimum jerk), which stops in
-#: about 1.4 mm at the planner's deceleration; a cancel 0.5 s late still rests 5 mm short
-CANCEL_MOVE_S = 2.5
+#: s: the duration of a move a test stops midway (cancel, halt, disable): 20 mm at up to
+#: 15 mm/s (minimum jerk), which stops in about 1.4 mm at the planner's deceleration; a
+#: cancel 0.5 s late still rests 5 mm short
+STOPPED_MOVE_S = 2.5
 #: m: the true actuators "do not move": peak-to-peak of the true lengths (the simulator's
 #: position loop holds to a fraction of an encoder count, 0.12 um)
 STILL = 2e-6
@@ -428,10 +429,14 @@ def recover_and_enable(op: Operator, timeout: float = 10.0) -> list[str]:
 def _stop_mid_goal(op: Operator, stop: str, stopped_state: str) -> None:
     """``~/halt`` or ``~/disable`` 0.3 of the way into a goal: the goal is aborted saying
     so; the true actuators brake to rest short of the goal and then do not move while
-    stopped; ``~/enable`` re-anchors and a safe goal succeeds."""
+    stopped; ``~/enable`` re-anchors and a safe goal succeeds. From a known start, timed
+    (``STOPPED_MOVE_S``): from wherever the previous test left the ring the move was as short
+    as a few mm on Fitts' time, and a stop the test's process sent late on a loaded host
+    (run 702) came when the ring was within 1 mm of the goal."""
+    op.goal_succeeds(SAFE_GOALS[1])
     start = op.true_lengths()
     target = SAFE_GOALS[2]
-    gid = op.goal(target)
+    gid = op.path([target], times=[STOPPED_MOVE_S])
     op.wait_travel(start, target, 0.3)
     ok, msg = op.driver(stop)
     assert ok, msg
@@ -551,14 +556,14 @@ def test_cancel_mid_goal_decelerates_short_of_the_goal(op):
     to rest short of the goal, never past it; then a safe goal succeeds. (From a known
     start, 20 mm from the goal: from wherever the previous test left the ring the move was
     as short as 4 mm, and a cancel that a loaded host delivered 0.1 s late came after the
-    motion could still stop short. Timed, ``CANCEL_MOVE_S``: on Fitts' time, 0.8 s, the
+    motion could still stop short. Timed, ``STOPPED_MOVE_S``: on Fitts' time, 0.8 s, the
     ring passed 47 mm/s and needed 11 mm to stop at the planner's deceleration, so a cancel
     the test's process sent 0.2 s late on a busy host left it 1.5 mm short, inside the
     goal's tolerance.)"""
     op.goal_succeeds(np.array([0.0, 0.385, op.dev.home[2]]))
     start = op.true_lengths()
     target = np.array([0.0, 0.405, op.dev.home[2]])
-    gid = op.path([target], times=[CANCEL_MOVE_S])
+    gid = op.path([target], times=[STOPPED_MOVE_S])
     op.wait_travel(start, target, 0.3)
     ok, msg = op.call('/trajectory_node/cancel')
     cancelled_at = op.now_ns()
