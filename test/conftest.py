@@ -294,10 +294,14 @@ def _frozen_heap(item) -> None:
     gc.freeze()
 
 
-#: SCHED_FIFO priority of a test's threads once it runs a control cycle or simulated drives
-#: in this process: below the cycle processes' ``can.cycle_priority`` (50), above every
-#: normally scheduled process
+#: SCHED_FIFO priority of the control cycle's threads a test runs in this process: below
+#: the cycle processes' ``can.cycle_priority`` (50), above every normally scheduled process
 IN_PROCESS_CYCLE_PRIORITY = 40
+#: the modules whose threads are the control cycle's or the drives': the master's SYNC,
+#: the simulated drives' timers, python-can's receive and periodic-send threads
+IN_PROCESS_CYCLE_MODULES = ('brace_control.can.', 'brace_control.sim.', 'can.', 'canopen.')
+#: the test's own thread meanwhile (its setpoint streams, its checks): niceness, not FIFO
+IN_PROCESS_TEST_NICE = -10
 #: the interpreter's switch interval meanwhile, as the cycle process sets it
 #: (``can.gil_switch_interval_us``)
 IN_PROCESS_SWITCH_INTERVAL_S = 200e-6
@@ -307,28 +311,41 @@ IN_PROCESS_SWITCH_INTERVAL_S = 200e-6
 def _in_process_cycle_as_the_cycle_process_runs(monkeypatch):
     """A test that runs a master (``BraceMaster``) or simulated drives (``SimulatedBrace``)
     in this process gets them scheduled as ``can_driver_node``'s cycle process schedules
-    its own (docs/can.md, "Scheduling"): every thread at SCHED_FIFO, the interpreter's
-    switch interval at 200 us. The threads they start take the priority of the thread
-    that starts them: the test's thread is raised before either is made, and set back
-    to normal scheduling when the test ends.
+    its own (docs/can.md, "Scheduling"): once either is made, every thread started from
+    the modules of ``IN_PROCESS_CYCLE_MODULES`` runs at SCHED_FIFO, and the interpreter's
+    switch interval is 200 us. The test's own thread, which streams setpoints and checks
+    the results, gets niceness -10: a large share of a core at normal scheduling. All is
+    set back when the test ends.
 
     Without it the drives' heartbeats, the SYNC and the test's own setpoint stream ran
     at normal scheduling beside the other workers' stacks, whose cycle processes run at
     SCHED_FIFO 50: a loaded host tripped the drives' heartbeat consumers (EMCY 8130h),
     slowed the SYNC below 400 Hz or stalled a stream, each in a different test
-    (bench/RESULTS.md, fifth and sixth sessions). Where SCHED_FIFO is refused (no
-    CAP_SYS_NICE) the test runs as before."""
+    (bench/RESULTS.md, fifth and sixth sessions). The test's own thread is not raised to
+    SCHED_FIFO: tests parse dictionaries, boot drives and check records for seconds, and a
+    thread so raised took a core from every normally scheduled process of the machine
+    meanwhile (the other workers' nodes: up to 1.8 of the 2 cores ran at SCHED_FIFO;
+    bench/RESULTS.md, seventh session). Where SCHED_FIFO is refused (no CAP_SYS_NICE) the
+    test runs as before."""
     import sys
 
     from brace_control.can.cycle import set_thread_priority
-    raised: list[float] = []
+    raised: list[tuple[float, int]] = []
+
+    def fifo_allowed() -> bool:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(IN_PROCESS_CYCLE_PRIORITY))
+        except (AttributeError, OSError):
+            return False
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+        return True
 
     def raise_priority() -> None:
-        if raised or threading.current_thread() is not threading.main_thread():
+        if raised or threading.current_thread() is not threading.main_thread() or not fifo_allowed():
             return
-        if not set_thread_priority(IN_PROCESS_CYCLE_PRIORITY):   # the SYNC thread's own call
-            return
-        raised.append(sys.getswitchinterval())
+        nice = os.getpriority(os.PRIO_PROCESS, 0)          # Linux: this thread's
+        os.setpriority(os.PRIO_PROCESS, 0, IN_PROCESS_TEST_NICE)
+        raised.append((sys.getswitchinterval(), nice))
         sys.setswitchinterval(IN_PROCESS_SWITCH_INTERVAL_S)
 
     def wrap(cls: type) -> None:
@@ -339,14 +356,30 @@ def _in_process_cycle_as_the_cycle_process_runs(monkeypatch):
             init(self, *args, **kwargs)
         monkeypatch.setattr(cls, '__init__', __init__)
 
+    thread_start = threading.Thread.start
+
+    def start(self: threading.Thread) -> None:
+        target = getattr(self, '_target', None)
+        module = getattr(target, '__module__', None) or type(self).__module__
+        if raised and module.startswith(IN_PROCESS_CYCLE_MODULES):
+            run = self.run
+
+            def run_raised() -> None:
+                set_thread_priority(IN_PROCESS_CYCLE_PRIORITY)      # the SYNC thread's own call
+                os.setpriority(os.PRIO_PROCESS, 0, 0)               # (not the test's niceness)
+                run()
+            self.run = run_raised
+        thread_start(self)
+    monkeypatch.setattr(threading.Thread, 'start', start)
+
     from brace_control.can.master import BraceMaster
     from brace_control.sim.brace import SimulatedBrace
     wrap(BraceMaster)
     wrap(SimulatedBrace)
     yield
     if raised:
-        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-        sys.setswitchinterval(raised[0])
+        sys.setswitchinterval(raised[0][0])
+        os.setpriority(os.PRIO_PROCESS, 0, raised[0][1])
 
 
 @pytest.hookimpl(hookwrapper=True)

@@ -283,10 +283,10 @@ def test_the_trunk_path_is_read_while_a_stream_adds_to_it() -> None:
     import sys
     import threading
     brace, params = lumbar()
-    # two threads that never sleep for ~3 s: at normal scheduling. test/conftest.py raised
-    # this thread to SCHED_FIFO when the brace was made; so raised, they took a core from
-    # every other process of the machine for that long (the other workers' stacks)
-    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    # two threads that never sleep for ~3 s: at the default niceness, not the -10 that
+    # test/conftest.py gave this thread when the brace was made (at SCHED_FIFO, as it once
+    # was, they took a core from every other process of the machine for that long)
+    os.setpriority(os.PRIO_PROCESS, 0, 0)
     rest0 = np.asarray(params['sim']['rest_pose'])
     errors: list[BaseException] = []
     stop = threading.Event()
