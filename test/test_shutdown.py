@@ -13,6 +13,8 @@ import os
 import signal
 import subprocess
 import sys
+import time
+from pathlib import Path
 
 import pytest
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -60,6 +62,50 @@ def test_node_process_stops_cleanly(ros, name, sig):
     assert proc.returncode == 0, f'{name} exit code {proc.returncode} on {sig.name}:\n{err[-3000:]}'
     for text in NOT_ON_STDERR:
         assert text not in err, f'{name} printed {text!r} on {sig.name}:\n{err[-3000:]}'
+
+
+#: how a node's process is started: ``ros2 run`` (the console script), ``python -m``, and
+#: the bring-up's fallback (``brace_control.bringup.find_executable``)
+START_FORMS = {
+    'console_script': lambda name: [str(Path(sys.executable).parent / name)],
+    'python_m': lambda name: [sys.executable, '-m', f'brace_control.nodes.{name}'],
+    'python_c': lambda name: [sys.executable, '-c',
+                              f'import sys; from brace_control.nodes.{name} import main; sys.exit(main())'],
+}
+
+
+def _importing_rclpy(pid: int) -> bool:
+    """rclpy's native module is loaded: the process is in its imports, past
+    ``brace_control.nodes``' own (rclpy is imported by the node's module, after it)."""
+    try:
+        return '_rclpy_pybind11' in Path(f'/proc/{pid}/maps').read_text()
+    except OSError:
+        return False
+
+
+# docs/safety.md §20
+@pytest.mark.parametrize('form', sorted(START_FORMS))
+def test_a_node_stopped_while_it_still_imports_ends_cleanly(form):
+    """SIGINT while the node's process imports rclpy and its messages (about a second after
+    ``ros2 run``; a bring-up that stops its nodes as they start): exit code 0, no
+    ``KeyboardInterrupt`` traceback."""
+    proc = subprocess.Popen([*START_FORMS[form]('kinetics_node'), '--ros-args', '--params-file',
+                             str(LUMBAR_YAML)], cwd=REPO, env=dict(os.environ),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 30
+        while not _importing_rclpy(proc.pid) and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.002)
+        assert proc.poll() is None, 'the node ended by itself:\n' + proc.communicate()[1][-3000:]
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, f'exit code {proc.returncode}:\n{err[-3000:]}'
+    for text in NOT_ON_STDERR:
+        assert text not in err, f'printed {text!r}:\n{err[-3000:]}'
 
 
 _STUCK_TEARDOWN = r"""

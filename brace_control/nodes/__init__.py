@@ -18,3 +18,38 @@ DRIVER_NODE = 'can_driver_node'
 
 for _var in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS', 'BLIS_NUM_THREADS'):
     _os.environ.setdefault(_var, '1')
+
+
+def _started_as_a_node() -> bool:
+    """Whether this process is one of the node executables: ``ros2 run`` (the console
+    script, named after the node), ``python -m brace_control.nodes.<node>``, or the
+    bring-up's ``python -c 'from brace_control.nodes.<node> import main ...'``."""
+    import sys
+    if _os.path.splitext(_os.path.basename(sys.argv[0]))[0] in NODE_NAMES:
+        return True
+    argv = list(getattr(sys, 'orig_argv', ()))
+    for flag, value in zip(argv, argv[1:]):
+        if flag == '-m' and value in {f'{__name__}.{n}' for n in NODE_NAMES}:
+            return True
+        if flag == '-c' and any(f'from {__name__}.{n} import main' in value for n in NODE_NAMES):
+            return True
+    return False
+
+
+def _stop_while_starting() -> None:
+    """A node process stopped by a signal while it still imports (rclpy and the message types
+    take about a second) ends cleanly, exit code 0, as it does once it runs (``runner``):
+    Ctrl-C right after ``ros2 run``, or a bring-up that stops its nodes as they start, would
+    otherwise print a ``KeyboardInterrupt`` traceback (SIGINT) or end by the signal (the
+    others). ``runner.run_node`` installs its own handlers before anything else."""
+    import signal
+
+    def leave(signum, frame):
+        raise SystemExit(0)
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT):
+        if signal.getsignal(sig) in (signal.SIG_DFL, signal.default_int_handler):
+            signal.signal(sig, leave)
+
+
+if _started_as_a_node():
+    _stop_while_starting()
