@@ -81,6 +81,8 @@ class Operator:
     def __init__(self, group: ProcessBringUp, node, probe: Probe, dev: Device) -> None:
         self.group, self.node, self.probe, self.dev = group, node, probe, dev
         self.sent = 0
+        #: goal id -> when it was sent (monotonic s)
+        self.sent_at: dict[str, float] = {}
         self.first = 1                                  # the current test's first goal id
         self.safety: list[DiagnosticStatus] = []       # the driver's .../safety statuses
         self.execution: list[dict] = []                 # /brace/execution_status (evidence)
@@ -144,6 +146,7 @@ class Operator:
         self.wait_matched(self.probe.goal_pub, 'the trajectory node on /brace/pose_goal')
         self.probe.send(pose)
         self.sent += 1
+        self.sent_at[str(self.sent)] = time.monotonic()
         return str(self.sent)
 
     def path(self, poses: Sequence[Sequence[float]], times: Sequence[float] | None = None) -> str:
@@ -600,7 +603,15 @@ def test_flood_of_200_goals_each_ends_once_and_the_newest_succeeds(op):
     check_no_stop(op.probe)
     check_succeeded_goals_are_true(op.dev, op.probe)
     flood = [e for e in ends if int(e['goal_id']) > op.sent - 200]
-    others = [(e['goal_id'], e['state'], e['reason']) for e in flood[:-1] if not _cancelled_by_newer(e)]
+
+    def reached_before_the_next(e: dict) -> bool:
+        """A goal may succeed where this process sent the next one later than the goal's
+        whole motion (a loaded host stalled the flood: run 710, goal 67)."""
+        after = op.sent_at.get(str(int(e['goal_id']) + 1))
+        return (e['state'] == 'succeeded' and bool(e.get('duration')) and after is not None
+                and after - op.sent_at[e['goal_id']] >= float(e['duration']))
+    others = [(e['goal_id'], e['state'], e['reason']) for e in flood[:-1]
+              if not (_cancelled_by_newer(e) or reached_before_the_next(e))]
     assert not others, others
     assert newest['state'] == 'succeeded', (newest, op.evidence())
     op.wait_rest()
