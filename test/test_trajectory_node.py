@@ -133,6 +133,7 @@ def test_a_goal_is_published_once_whole_and_succeeds_only_at_the_goal(ros):
     assert stack.states('1') == [('1', 'accepted')]
     # the estimate (kinetics_node, 100 Hz) at the goal: success once it stayed there 50 ms
     deadline = time.monotonic() + 5.0
+    inside_from = node.get_clock().now().nanoseconds
     while ('1', 'succeeded') not in stack.states('1') and time.monotonic() < deadline:
         stack.estimate(goal + [0.0008, 0.0, 0.001])
         ros.spin_for(0.01)
@@ -140,6 +141,8 @@ def test_a_goal_is_published_once_whole_and_succeeds_only_at_the_goal(ros):
     assert stack.states() == [('1', 'accepted'), ('1', 'succeeded')]
     done = stack.status[-1]
     assert value(done, 'stamp') == str(sent.nanoseconds) and value(done, 'source') == 'pose_goal'
+    # when the node decided it: after 50 ms of estimates inside the tolerance, not later than now
+    assert inside_from + 50_000_000 <= int(value(done, 'time')) <= node.get_clock().now().nanoseconds
     assert len(stack.trajectories) == 1
 
 

@@ -27,8 +27,10 @@ Topics and services (all in the device's ``base_frame``):
   every goal's first event is ``accepted`` or ``rejected``); ``level`` OK (accepted,
   succeeded), WARN (rejected, cancelled), ERROR (aborted); ``values``: ``goal_id``,
   ``state``, ``reason``, ``stamp`` (the goal message's header stamp, ns), ``source``
-  (``pose_goal`` or ``pose_path``), ``profile``, ``duration`` (s), ``target``, and where
-  known ``final_error`` (per pose coordinate) and ``min_wrench_capacity``.
+  (``pose_goal`` or ``pose_path``), ``profile``, ``duration`` (s), ``target``, ``time``
+  (when the node decided the event, ns of its ROS clock: a reader served late still knows
+  when a goal ended), and where known ``final_error`` (per pose coordinate) and
+  ``min_wrench_capacity``.
 * ``~/cancel`` (``std_srvs/Trigger``): decelerate to rest along the path and hold.
 
 How a goal ends (docs/safety.md §12, §16; :class:`~brace_control.trajectory.TrajectoryRunner`):
@@ -449,7 +451,8 @@ class TrajectoryNode(Node):
                   'profile': ev.profile,
                   'duration': '' if ev.duration is None else f'{ev.duration:.4f}',
                   'target': '' if ev.target is None else
-                  ' '.join(f'{x:.6g}' for x in np.asarray(ev.target).ravel())}
+                  ' '.join(f'{x:.6g}' for x in np.asarray(ev.target).ravel()),
+                  'time': self.get_clock().now().nanoseconds}
         values.update(ev.values)
         if self.context.ok():
             self._status_pub.publish(status_msg(f'{self.get_name()}/goal/{ev.goal_id}', ev.state.value,
