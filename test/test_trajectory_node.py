@@ -354,3 +354,37 @@ def test_ros2_param_set_is_refused_with_a_reason_and_changes_nothing(ros):
     for r in results:
         assert not r.successful and 'read-only' in r.reason, r.reason
     assert {n: node.get_parameter(n).value for n in before} == before
+
+
+def test_a_refused_late_splice_is_planned_again_from_the_running_motion_then_aborted(ros):
+    """Goal 2 preempts goal 1 while it moves; the driver refuses goal 2's motion ("more than
+    the splice tolerance": it came after its takeover time). Goal 2 is not aborted: it is
+    planned again, starting where motion 1 (the one that goes on) is at the new takeover,
+    up to LATE_SPLICE_REPLANS times; refused once more, it is aborted with the driver's
+    reason, and it ends exactly once."""
+    from brace_control.nodes.trajectory_node import LATE_SPLICE_REPLANS
+    node, stack = start(ros)
+    stack.goal_pub.publish(pose_msg(HOME + [0.0, 0.02, 0.0], frame_id=FRAME))
+    ros.spin_until(lambda: len(stack.trajectories) == 1, what='motion 1')
+    motion1 = stack.knots(stack.trajectories[0])
+    t1 = stamp_to_ns(stack.trajectories[0].header.stamp)
+    stack.event(stack.trajectories[0], 'started')
+    stack.goal_pub.publish(pose_msg(HOME + [0.0, -0.01, 0.0], frame_id=FRAME))
+    ros.spin_until(lambda: len(stack.trajectories) == 2, what='motion 2')
+    why = ('its start is 9.240 mm (or mrad) from the command on joint 3, more than the splice '
+           'tolerance 5.000; the running motion continues')
+    for k in range(LATE_SPLICE_REPLANS):
+        stack.event(stack.trajectories[-1], 'rejected', why)
+        ros.spin_until(lambda: len(stack.trajectories) == 3 + k, what=f'motion 2 planned again ({k + 1})')
+        again = stack.trajectories[-1]
+        # from motion 1 at its takeover (the motion the driver goes on with)
+        t = (stamp_to_ns(again.header.stamp) - t1) * 1e-9
+        want = motion1.sample(min(t, motion1.duration))[0]
+        np.testing.assert_allclose(stack.knots(again).positions[0], want, atol=1e-6)
+        assert [s for g, s in stack.states('2') if s != 'accepted'] == []
+    stack.event(stack.trajectories[-1], 'rejected', why)
+    stack.wait_state('2', 'aborted')
+    assert 'splice tolerance' in value(stack.status[-1], 'reason')
+    ros.spin_for(0.2)
+    assert [s for _, s in stack.states('2')] == ['accepted'] * (1 + LATE_SPLICE_REPLANS) + ['aborted']
+    assert [s for _, s in stack.states('1')] == ['accepted', 'cancelled']

@@ -70,6 +70,10 @@ BLEND_SHARE = 0.1
 BLEND_MIN_S = 0.02
 #: a splice difference below this (m or rad; per axis) needs no correction
 EXACT_SPLICE = 1e-9
+#: the words of a splice refusal's reason (a trajectory whose start is too far from the
+#: running command: delivered after its takeover time while the brace moved); the
+#: trajectory node plans such a goal again (``trajectory_node``, "Late splices")
+SPLICE_REFUSED = 'more than the splice tolerance'
 #: |v| (unit/s) and |a| at a trajectory's last point that still count as at rest
 END_AT_REST_V = 1e-6
 END_AT_REST_A = 1e-4
@@ -510,7 +514,7 @@ class PathExecutor:
             i = int(np.argmax(np.abs(dq)))
             self.events.append(self._event(
                 new.tag, 'rejected', f'its start is {abs(dq[i]) * 1e3:.3f} mm (or mrad) from the '
-                f'command on joint {i + 1}, more than the splice tolerance '
+                f'command on joint {i + 1}, {SPLICE_REFUSED} '
                 f'{self.splice_tolerance * 1e3:.3f}; the running motion continues', t, old_q))
             return t
         if t_take < t:

@@ -46,6 +46,13 @@ superseded is reported ``cancelled: superseded by goal N``. The goal subscriptio
 samples (no depth can drop one). A new goal preempts the running one from the state the
 running motion has ``trajectory.plan_lookahead`` after the goal arrived (continuous position,
 velocity, acceleration). All math is in :mod:`brace_control.trajectory`.
+
+Late splices: a preempting motion that reaches the driver after its takeover time while the
+brace moves (a loaded host delays the two DDS hops past the lookahead) no longer starts where
+the running command is; the driver refuses it ("more than the splice tolerance; the running
+motion continues"). Its goal is then planned again from the motion that goes on (a second
+``accepted`` event), up to ``LATE_SPLICE_REPLANS`` times, unless a newer goal waits; only
+then is it aborted with the driver's reason.
 """
 from __future__ import annotations
 
@@ -64,6 +71,7 @@ from std_srvs.srv import Trigger
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from ..can.units import scaling_from_config
+from ..control.execution import SPLICE_REFUSED
 from ..config import ConfigError
 from ..schema import SCHEMA
 from ..mechanisms import mechanism_from_config
@@ -87,8 +95,12 @@ PLAN_LOOKAHEAD_S = float(SCHEMA['trajectory.plan_lookahead'].default)
 STOPPING_WAIT_S = 3.0
 #: Hz of the timeout checks while a goal is active (none while idle)
 CHECK_RATE_HZ = 20.0
-#: s the node waits at shutdown until its last goal statuses are acknowledged
-SHUTDOWN_ACK_S = 1.0
+#: s the node waits at shutdown until its last goal statuses are acknowledged (at once when
+#: every reader has them; 1 s was too short for a recorder a loaded host served late: the
+#: interaction demo's bag once lost its last goal's success, run 712)
+SHUTDOWN_ACK_S = 3.0
+#: times a goal is planned again after the driver refused its motion's splice
+LATE_SPLICE_REPLANS = 2
 
 _LEVEL = {GoalState.ACCEPTED: OK, GoalState.SUCCEEDED: OK, GoalState.REJECTED: WARN,
           GoalState.CANCELLED: WARN, GoalState.ABORTED: ERROR}
@@ -133,6 +145,10 @@ class TrajectoryNode(Node):
         self._lock = threading.Lock()
         self._report_lock = threading.Lock()
         self._pending: tuple[GoalRequest, dict] | None = None
+        #: the request of the newest goal whose motion went to the driver, and per goal id
+        #: how often it was planned again after a refused splice ("Late splices")
+        self._committed: GoalRequest | None = None
+        self._replans: dict[str, int] = {}
         self._wake = threading.Condition(self._lock)
         self._closing = False
         self._meta: dict[str, dict] = {}          # goal id -> its stamp and source
@@ -258,7 +274,15 @@ class TrajectoryNode(Node):
                 request, _ = self._pending
                 self._pending = None
             try:
-                self._report(self._plan_one(request))
+                events = self._plan_one(request)
+                if request.goal_id in self._replans:
+                    # planned again after a refused splice: it was accepted before, so a
+                    # refusal now ends it as aborted (exactly one terminal state)
+                    events = [GoalEvent(ev.goal_id, GoalState.ABORTED, f'planned again after its '
+                                        f'splice was refused, then rejected: {ev.reason}', ev.target)
+                              if ev.goal_id == request.goal_id and ev.state is GoalState.REJECTED else ev
+                              for ev in events]
+                self._report(events)
             except Exception as exc:  # noqa: BLE001 - a planner bug must still end the goal
                 self.get_logger().error(f'goal {request.goal_id}: planning failed: {exc!r}')
                 self._report([GoalEvent(request.goal_id, GoalState.ABORTED,
@@ -335,6 +359,7 @@ class TrajectoryNode(Node):
                 self._last_tag = tag
                 events = self.runner.commit(request, plan, start, tag=tag, now=now)
                 if events and events[-1].state is GoalState.ACCEPTED:
+                    self._committed = request
                     self._traj_pub.publish(pose_trajectory_msg(
                         knots.times, knots.positions, knots.velocities, knots.accelerations,
                         frame_id=self.base_frame, joint_name=self.platform_frame,
@@ -377,8 +402,29 @@ class TrajectoryNode(Node):
             events = self.runner.on_execution(tag, values.get('kind', msg.message),
                                               values.get('reason', ''), positions, now=now,
                                               lag=_float(values.get('lag', '')))
+            events = self._plan_late_splices_again(events)
             self._wake.notify_all()
         self._report(events)
+
+    def _plan_late_splices_again(self, events: list[GoalEvent]) -> list[GoalEvent]:
+        """Late splices (module docstring): a goal whose motion the driver refused for its
+        splice is planned again, from the motion the driver goes on with, instead of being
+        aborted; at most :data:`LATE_SPLICE_REPLANS` times, and not when a newer goal waits
+        (the newer one is planned instead). The caller holds the lock."""
+        kept = []
+        for ev in events:
+            request = self._committed
+            replans = self._replans.get(ev.goal_id, 0)
+            if (ev.state is GoalState.ABORTED and SPLICE_REFUSED in ev.reason and request is not None
+                    and request.goal_id == ev.goal_id and self._pending is None and not self._closing
+                    and replans < LATE_SPLICE_REPLANS):
+                self._replans = {ev.goal_id: replans + 1}
+                self._pending = (request, {})
+                self.get_logger().warning(f'goal {ev.goal_id}: planned again ({replans + 1} of '
+                                          f'{LATE_SPLICE_REPLANS}): {ev.reason}')
+                continue
+            kept.append(ev)
+        return kept
 
     def _on_estimate(self, msg: PoseStamped) -> None:
         try:
