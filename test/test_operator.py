@@ -244,11 +244,18 @@ class Operator:
                         f'the true actuator {self.dev.names[axis]} to move {need * 1e3:.2f} mm')
 
     def wait_rest(self, samples: int = 20, timeout: float = 10.0) -> np.ndarray:
-        """Wait until the last ``samples`` true samples stand still; the lengths then."""
+        """Wait until the last ``samples`` true samples, all received after the call, stand
+        still; the lengths then. (Samples from before the call once stood for a rest the
+        truth stream had not yet shown: it stalled on a loaded host, run 712.)"""
+        with self.probe.lock:
+            n0 = len(self.probe.sim_joints)
+
         def resting() -> bool:
             with self.probe.lock:
+                if len(self.probe.sim_joints) - n0 < samples:
+                    return False
                 q = [np.asarray(m.position) for m in self.probe.sim_joints[-samples:]]
-            return len(q) == samples and float(np.ptp(np.asarray(q), axis=0).max()) < STILL
+            return float(np.ptp(np.asarray(q), axis=0).max()) < STILL
         self.wait(resting, timeout, f'the true actuators at rest for {samples} samples')
         return self.true_lengths()
 
