@@ -53,15 +53,28 @@ def test_node_process_stops_cleanly(ros, name, sig):
         ros.spin_until(lambda: name != 'can_driver_node' or bool(states) or proc.poll() is not None,
                        timeout=30, what=f'{name} state')
         assert proc.poll() is None, f'{name} ended before it was up:\n' + proc.communicate()[1][-3000:]
+    except BaseException:
+        _kill(proc)
+        raise
+    _stops_cleanly(proc, sig, f'{name} on {sig.name}')
+
+
+def _kill(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        proc.kill()
+        proc.wait()
+
+
+def _stops_cleanly(proc: subprocess.Popen, sig: int, what: str) -> None:
+    """``sig`` to ``proc``: it ends with exit code 0 and prints nothing of NOT_ON_STDERR."""
+    try:
         proc.send_signal(sig)
         _, err = proc.communicate(timeout=30)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-    assert proc.returncode == 0, f'{name} exit code {proc.returncode} on {sig.name}:\n{err[-3000:]}'
+        _kill(proc)
+    assert proc.returncode == 0, f'{what}: exit code {proc.returncode}:\n{err[-3000:]}'
     for text in NOT_ON_STDERR:
-        assert text not in err, f'{name} printed {text!r} on {sig.name}:\n{err[-3000:]}'
+        assert text not in err, f'{what}: printed {text!r}:\n{err[-3000:]}'
 
 
 #: how a node's process is started: ``ros2 run`` (the console script), ``python -m``, and
@@ -97,15 +110,10 @@ def test_a_node_stopped_while_it_still_imports_ends_cleanly(form):
         while not _importing_rclpy(proc.pid) and proc.poll() is None and time.monotonic() < deadline:
             time.sleep(0.002)
         assert proc.poll() is None, 'the node ended by itself:\n' + proc.communicate()[1][-3000:]
-        proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-    assert proc.returncode == 0, f'exit code {proc.returncode}:\n{err[-3000:]}'
-    for text in NOT_ON_STDERR:
-        assert text not in err, f'printed {text!r}:\n{err[-3000:]}'
+    except BaseException:
+        _kill(proc)
+        raise
+    _stops_cleanly(proc, signal.SIGINT, f'kinetics_node ({form}) while importing')
 
 
 _STUCK_TEARDOWN = r"""
