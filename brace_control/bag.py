@@ -75,6 +75,10 @@ RECORD_DRAIN_MAX_S = 2.0
 #: History depth of a replayed topic whose recording does not say (``ros2 bag record`` sees
 #: other publishers' history as UNKNOWN, depth 0) -- and the pacing window of KEEP_ALL.
 DEFAULT_DEPTH = 100
+#: History depth of the recorder's subscriptions (reliable): a recorder process starved for a
+#: few seconds (a busy machine) still takes every message of a 100 Hz topic its publisher
+#: kept (the ground truth keeps 5 s, ``topics.truth_qos``) instead of the newest 100.
+RECORD_DEPTH = 1000
 #: Seconds the replay waits for reliable readers to acknowledge (a pacing step, the end).
 DEFAULT_ACK_TIMEOUT_S = 5.0
 #: rosbag2 metadata versions this reader knows (rosbag2's own reader stops at 9 too).
@@ -927,7 +931,7 @@ class Recorder:
         _ensure_type(self._store, msgtype)
         with self._lock:
             self._conns[topic] = self._writer.add_connection(topic, msgtype, typestore=self._store)
-        qos = self._qos or QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        qos = self._qos or QoSProfile(depth=RECORD_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
         self._subs[topic] = self.node.create_subscription(
             cls, topic, lambda data, t=topic: self._write(t, data), qos, raw=True)
 

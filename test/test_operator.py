@@ -244,15 +244,20 @@ class Operator:
                         f'the true actuator {self.dev.names[axis]} to move {need * 1e3:.2f} mm')
 
     def wait_rest(self, samples: int = 20, timeout: float = 10.0) -> np.ndarray:
-        """Wait until the last ``samples`` true samples, all received after the call, stand
-        still; the lengths then. (Samples from before the call once stood for a rest the
-        truth stream had not yet shown: it stalled on a loaded host, run 712.)"""
+        """Wait until the last ``samples`` true samples, all received after the call, the
+        newest stamped after it, stand still; the lengths then. (Samples from before the
+        call once stood for a rest the truth stream had not yet shown: it stalled on a
+        loaded host, run 712. A stalled truth publisher then sends the samples it missed,
+        with their own stamps: received after the call, stamped before it, run 803.)"""
+        t_call = self.now_ns()
         with self.probe.lock:
             n0 = len(self.probe.sim_joints)
 
         def resting() -> bool:
             with self.probe.lock:
                 if len(self.probe.sim_joints) - n0 < samples:
+                    return False
+                if stamp_to_ns(self.probe.sim_joints[-1].header.stamp) < t_call:
                     return False
                 q = [np.asarray(m.position) for m in self.probe.sim_joints[-samples:]]
             return float(np.ptp(np.asarray(q), axis=0).max()) < STILL

@@ -97,8 +97,9 @@ With ``can.sim: true`` the simulated brace (:mod:`brace_control.sim`) is started
 cycle's process on the same python-can channel before the master boots (a ``virtual`` bus
 only exists inside one process), and its ground truth is published at ``sim.truth_rate_hz``
 (what a user compares an estimator or a controller against; nothing of the stack
-subscribes to it), with ``topics.TRUTH_QOS`` (a tick that came late publishes the truths
-it missed, each with its own SYNC's stamp), each topic while something subscribes it (they
+subscribes to it), with ``topics.truth_qos`` (``topics.TRUTH_KEPT_S`` of it kept for a
+reader that has not acknowledged it yet; a tick that came late publishes the truths it
+missed, each with its own SYNC's stamp), each topic while something subscribes it (they
 are volatile: a reader gets the next sample either way, and nobody pays for truth nobody
 reads):
 
@@ -500,13 +501,14 @@ class CanDriverNode(LifecycleNode):
         from .msgs import pose_kind, pose_msg, wrench_msg
         self.create_subscription(PoseStamped, topics.SIM_BODY_REST, self._on_body_rest,
                                  topics.STATE_QOS, callback_group=self._stream_group)
-        self._truth_pubs = tuple(self.create_lifecycle_publisher(t, name, topics.TRUTH_QOS) for t, name in (
+        rate = float(self.cfg['sim']['truth_rate_hz'])
+        qos = topics.truth_qos(rate)
+        self._truth_pubs = tuple(self.create_lifecycle_publisher(t, name, qos) for t, name in (
             (JointState, topics.SIM_JOINT_STATES), (PoseStamped, topics.SIM_POSE),
             (WrenchStamped, topics.SIM_WRENCH), (PoseStamped, topics.SIM_BODY_POSE)))
         kind = pose_kind(self.mechanism)
         base, platform = self.cfg['base_frame'], self.cfg['platform_frame']
         last_wrench: list[Any] = [None, None]       # (pose, efforts) bytes, the platform wrench
-        rate = float(self.cfg['sim']['truth_rate_hz'])
         # the cycle's process: the truths of its snapshots, one per joint-state sample; kept
         # at least this far apart (s): the truth's rate, with half a sample's slack
         spacing = max(1.0 / rate - 0.5 / float(self.cfg['can']['joint_state_rate_hz']), 0.0)

@@ -5,6 +5,8 @@ Nodes, bring-up, the demo, its report and the tests import them from here (ARCHI
 """
 from __future__ import annotations
 
+import math
+
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 __all__ = [
@@ -13,7 +15,8 @@ __all__ = [
     'GOAL_STATUS', 'EXECUTION_STATUS', 'DRIVER_STATE', 'DIAGNOSTICS', 'SIM_JOINT_STATES',
     'SIM_POSE', 'SIM_WRENCH', 'WRENCH_GOAL', 'INTERACTION_GOAL', 'SIM_BODY_REST', 'SIM_BODY_POSE',
     'BRINGUP',
-    'GOAL_QOS', 'TRAJECTORY_QOS', 'SETPOINT_QOS', 'STATE_QOS', 'TRUTH_QOS', 'MEASURED_QOS', 'STATUS_QOS',
+    'GOAL_QOS', 'TRAJECTORY_QOS', 'SETPOINT_QOS', 'STATE_QOS', 'TRUTH_QOS', 'TRUTH_KEPT_S', 'truth_qos',
+    'MEASURED_QOS', 'STATUS_QOS',
     'GOAL_STATUS_QOS', 'GOAL_STATUS_DEPTH',
     'LATCHED_QOS', 'DIAGNOSTICS_QOS',
 ]
@@ -101,9 +104,21 @@ STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                        reliability=ReliabilityPolicy.RELIABLE)
 #: The simulator's ground truth (``/brace/sim/*``): as :data:`STATE_QOS`, deeper. A publisher
 #: that fell behind publishes the samples it missed at once, each with its own stamp
-#: (can_driver_node); 100 keeps 5 s of the default 20 Hz for a reader as deep.
+#: (can_driver_node); 100 keeps 5 s of the default 20 Hz for a reader as deep. At a higher
+#: ``sim.truth_rate_hz`` the driver keeps :data:`TRUTH_KEPT_S` of it (:func:`truth_qos`).
 TRUTH_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                        reliability=ReliabilityPolicy.RELIABLE)
+#: s of ground truth a publisher keeps for a reader that did not acknowledge it yet (a
+#: recorder starved for a second on a loaded host lost 100 samples of a 100 Hz truth kept
+#: 100 deep: the interaction demo's report found a hole in its step window)
+TRUTH_KEPT_S = 5.0
+
+
+def truth_qos(rate_hz: float) -> QoSProfile:
+    """:data:`TRUTH_QOS`, at least :data:`TRUTH_KEPT_S` of samples at ``rate_hz`` deep."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST,
+                      depth=max(TRUTH_QOS.depth, math.ceil(TRUTH_KEPT_S * rate_hz)),
+                      reliability=ReliabilityPolicy.RELIABLE)
 #: A subscriber that needs only the latest measurement: best effort matches any publisher.
 MEASURED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                           reliability=ReliabilityPolicy.BEST_EFFORT)
