@@ -116,9 +116,11 @@ TRUTH_KEPT_S = 5.0
 
 def truth_qos(rate_hz: float) -> QoSProfile:
     """:data:`TRUTH_QOS`, at least :data:`TRUTH_KEPT_S` of samples at ``rate_hz`` deep."""
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST,
+    return QoSProfile(history=TRUTH_QOS.history,
                       depth=max(TRUTH_QOS.depth, math.ceil(TRUTH_KEPT_S * rate_hz)),
-                      reliability=ReliabilityPolicy.RELIABLE)
+                      reliability=TRUTH_QOS.reliability)
+
+
 #: A subscriber that needs only the latest measurement: best effort matches any publisher.
 MEASURED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                           reliability=ReliabilityPolicy.BEST_EFFORT)

@@ -532,13 +532,11 @@ class TrajectoryNode(Node):
         self._report(events)
         if events:
             # the last words reach the subscribers before the process goes (reliable: acked)
-            t0 = time.monotonic()
-            acked = self._status_pub.wait_for_all_acked(Duration(seconds=SHUTDOWN_ACK_S))
-            if not acked:
+            if not self._status_pub.wait_for_all_acked(Duration(seconds=SHUTDOWN_ACK_S)):
                 self.get_logger().warning(
                     f'shutdown: not every reader of {topics.GOAL_STATUS} acknowledged the last '
-                    f'statuses within {SHUTDOWN_ACK_S:g} s ({self._status_pub.get_subscription_count()} '
-                    f'matched; waited {time.monotonic() - t0:.2f} s)')
+                    f'statuses within {SHUTDOWN_ACK_S:g} s '
+                    f'({self._status_pub.get_subscription_count()} matched)')
         if self._planner.is_alive() and self._planner is not threading.current_thread():
             self._planner.join(timeout=2.0)
 
