@@ -39,6 +39,7 @@ from geometry_msgs.msg import PoseStamped
 from rclpy.time import Time
 from sensor_msgs.msg import JointState
 
+from brace_control import bag
 from brace_control.bringup import BringUp
 from brace_control.nodes import topics
 from brace_control.nodes.msgs import pose_msg, status_values
@@ -98,8 +99,8 @@ class Record:
         self.setpoints: list[tuple[float, int, np.ndarray]] = []
         self.events: list[tuple[float, str, str, str]] = []
         self.driver: list[tuple[float, str, dict]] = []
-        node.create_subscription(JointState, topics.SIM_JOINT_STATES, self._on_joints, 50)
-        node.create_subscription(PoseStamped, topics.SIM_POSE, self._on_pose, 50)
+        node.create_subscription(JointState, topics.SIM_JOINT_STATES, self._on_joints, bag.RECORD_DEPTH)
+        node.create_subscription(PoseStamped, topics.SIM_POSE, self._on_pose, bag.RECORD_DEPTH)
         node.create_subscription(JointState, topics.ACTUATOR_SETPOINT, self._on_setpoint, topics.SETPOINT_QOS)
         node.create_subscription(DiagnosticStatus, topics.GOAL_STATUS, self._on_status, topics.STATUS_QOS)
         node.create_subscription(DiagnosticStatus, topics.DRIVER_STATE, self._on_driver, topics.LATCHED_QOS)
@@ -415,12 +416,13 @@ def test_hard_force_limit_latches_a_protective_stop_that_ends_the_mode(stack):
     assert np.max(np.abs(f)) <= 0.4 * SOFT_FORCE_LIMIT_N + FORCE_TOLERANCE_N   # safety.release_force
 
 
-def _truth_stamp_offset(rec: Record, t0: float) -> float:
-    """ROS time of the truth's stamps minus this process's monotonic clock (median over the
-    samples since ``t0``): places a monotonic instant on the truth's time axis."""
-    with rec.lock:
-        pairs = np.array([(r[0], r[1] * 1e-9) for r in rec.joints if r[0] >= t0])
-    return float(np.median(pairs[:, 1] - pairs[:, 0]))
+def _truth_stamp_offset() -> float:
+    """ROS time (the truth's stamps: the wall clock) minus this process's monotonic clock:
+    places a monotonic instant on the truth's time axis. Read off the two clocks, not from
+    when samples arrived: a reader the host served late received them in a burst, and an
+    offset taken from arrival times put the instant 0.3 s off (CI of 7300779: 4 truth
+    samples within 0.3 s of ``~/stop``)."""
+    return time.time() - time.monotonic()
 
 
 def _largest_steps(rec: Record, t0: float, instants: dict[str, float], half: float = 0.3
@@ -428,7 +430,7 @@ def _largest_steps(rec: Record, t0: float, instants: dict[str, float], half: flo
     """Per named instant (monotonic), the largest change of the true actuator velocity
     (m/s) and force (N) between consecutive truth samples within ``half`` s of it."""
     ts, _, v, f = rec.joints_between(t0)
-    offset = _truth_stamp_offset(rec, t0)
+    offset = _truth_stamp_offset()
     out = {}
     for name, t in instants.items():
         m = (ts >= t + offset - half) & (ts <= t + offset + half)

@@ -26,6 +26,7 @@ import yaml
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 
+from brace_control import bag
 from brace_control.nodes import topics
 from brace_control.nodes.msgs import status_values
 from ros_helpers import BUSY_HOST_ARGS, home_and_enable, stack_in_process, wait_until as wait
@@ -49,9 +50,9 @@ class Truth:
         self.body: list[tuple[float, np.ndarray]] = []
         self.force: list[tuple[float, np.ndarray]] = []
         self.status: list[DiagnosticStatus] = []
-        node.create_subscription(PoseStamped, topics.SIM_POSE, self._xy(self.pose), 50)
-        node.create_subscription(PoseStamped, topics.SIM_BODY_POSE, self._xy(self.body), 50)
-        node.create_subscription(WrenchStamped, topics.SIM_WRENCH, self._on_wrench, 50)
+        node.create_subscription(PoseStamped, topics.SIM_POSE, self._xy(self.pose), bag.RECORD_DEPTH)
+        node.create_subscription(PoseStamped, topics.SIM_BODY_POSE, self._xy(self.body), bag.RECORD_DEPTH)
+        node.create_subscription(WrenchStamped, topics.SIM_WRENCH, self._on_wrench, bag.RECORD_DEPTH)
         node.create_subscription(DiagnosticStatus, topics.GOAL_STATUS, self._on_status, topics.STATUS_QOS)
 
     def _xy(self, box):
