@@ -317,3 +317,110 @@ def test_the_cycle_trace_records_every_sync_and_each_goals_arrival_in_the_child(
     assert len(mp.take_cycle_trace()['cycles']) < len(cycles)      # emptied: only the new ones
     mp.trace_cycles(False)
     assert mp.take_cycle_trace() == {'cycles': [], 'commands': [], 'goals': []}
+
+
+def _threads_scheduling(pid: int) -> dict[str, tuple[int, int]]:
+    """Each thread of ``pid``: its name -> (policy, real-time priority), as the kernel has
+    them (``/proc/<pid>/task/*/stat`` fields 41 and 40)."""
+    out = {}
+    for tid in os.listdir(f'/proc/{pid}/task'):
+        try:
+            with open(f'/proc/{pid}/task/{tid}/stat') as f:
+                text = f.read()
+        except FileNotFoundError:
+            continue                          # ended meanwhile
+        name = text[text.index('(') + 1:text.rindex(')')]
+        fields = text.rsplit(')', 1)[1].split()
+        out[f'{name}/{tid}'] = (int(fields[38]), int(fields[37]))
+    return out
+
+
+_OFF_REAL_TIME = r"""
+import json, os, threading
+from brace_control.can.process import off_real_time
+
+def policy(tid=0):
+    return os.sched_getscheduler(tid), os.sched_getparam(tid).sched_priority
+
+try:
+    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(30))
+except OSError as exc:
+    print(json.dumps({'refused': str(exc)}))
+    raise SystemExit(0)
+out, hold, hold_other, entered = {}, threading.Event(), threading.Event(), threading.Event()
+ids = {}
+
+def park(key):
+    ids[key] = threading.get_native_id()
+    hold.wait()
+
+def sync_like():                       # a thread that sets its own priority, one above
+    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(31))
+    park('sync')
+
+def other_start_up():                  # start-up work still going on when the first ends
+    with off_real_time(30, -5):
+        ids['other'] = threading.get_native_id()
+        entered.set()
+        hold_other.wait()
+
+threads = [threading.Thread(target=park, args=('before',))]
+threads[0].start()
+threads.append(threading.Thread(target=other_start_up))
+threads[-1].start()
+entered.wait(5)
+with off_real_time(30, -5):
+    out['inside'] = policy() + (os.getpriority(os.PRIO_PROCESS, threading.get_native_id()),)
+    for target, args in ((park, ('started_inside',)), (sync_like, ())):
+        threads.append(threading.Thread(target=target, args=args))
+        threads[-1].start()
+    while len(ids) < 4:
+        pass
+    out['started_inside_while_off'] = policy(ids['started_inside'])
+out['after'] = policy()
+for key in ('before', 'started_inside', 'sync', 'other'):
+    out[key] = policy(ids[key])
+hold_other.set()
+threads[1].join(5)
+out['main_after_both'] = policy()
+hold.set()
+print(json.dumps(out))
+"""
+
+
+def test_start_up_work_runs_off_the_real_time_priority_and_its_threads_come_back_to_it():
+    """``off_real_time``, in a process of its own at SCHED_FIFO 30 (it sets every thread of
+    its process): inside, the calling thread runs at normal scheduling with its own
+    niceness, and a thread it starts inherits that; on leaving, every thread at normal
+    scheduling is back at SCHED_FIFO 30, the caller included, except one still inside
+    such work; a thread that set its own priority (31, as the SYNC thread does) keeps it.
+    Oracle: the kernel's own view of each thread (sched_getscheduler, getpriority)."""
+    out = subprocess.run([sys.executable, '-c', _OFF_REAL_TIME], capture_output=True, text=True,
+                         timeout=60, env={**os.environ, 'PYTHONPATH': os.pathsep.join(sys.path)})
+    assert out.returncode == 0, out.stderr[-3000:]
+    got = __import__('json').loads(out.stdout.strip().splitlines()[-1])
+    if 'refused' in got:
+        pytest.skip(f'SCHED_FIFO refused here: {got["refused"]}')
+    fifo, other = os.SCHED_FIFO, os.SCHED_OTHER
+    assert got['inside'] == [other, 0, -5], got
+    assert got['started_inside_while_off'] == [other, 0], got
+    assert got['after'] == [fifo, 30], got
+    assert got['before'] == [fifo, 30], got
+    assert got['started_inside'] == [fifo, 30], got
+    assert got['sync'] == [fifo, 31], got
+    assert got['other'] == [other, 0], got          # still inside its own start-up work
+    assert got['main_after_both'] == [fifo, 30], got
+
+
+def test_after_the_boot_every_thread_of_the_cycle_runs_at_its_real_time_priority(enabled):
+    """The child's construction and boot ran off the real-time priority (``off_real_time``);
+    once enabled, every thread of the child is at SCHED_FIFO ``can.cycle_priority`` and the
+    SYNC thread one above (the kernel's view, /proc). Skipped where SCHED_FIFO is refused."""
+    priority = int(CFG['can']['cycle_priority'])
+    threads = _threads_scheduling(enabled.pid)
+    if all(policy != os.SCHED_FIFO for policy, _ in threads.values()):
+        pytest.skip('SCHED_FIFO refused here: the child runs at its niceness')
+    sync = [name for name in threads if name.startswith('master-sync/')]
+    assert len(sync) == 1, threads
+    assert threads.pop(sync[0]) == (os.SCHED_FIFO, priority + 1), threads
+    assert set(threads.values()) == {(os.SCHED_FIFO, priority)}, threads

@@ -35,6 +35,7 @@ a ``cycle_stopped`` fault (on hardware the drives stop on the master's heartbeat
 """
 from __future__ import annotations
 
+import contextlib
 import copyreg
 import dataclasses
 import enum
@@ -51,7 +52,7 @@ import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from pathlib import Path
@@ -71,6 +72,10 @@ log = logging.getLogger('brace_control.can.process')
 #: calls that may take seconds (a 402 transition, homing, a relief): a thread each in the child
 SLOW_CALLS = frozenset({'boot', 'enable', 'disable', 'halt', 'home', 'recover', 'relieve',
                         'take_up', 'shutdown'})
+#: slow calls whose work is start-up work (the boot's dictionary checks and SDO configuration,
+#: a recovery's reconfiguration), all CPU where the simulated drives answer in the caller's
+#: thread: run off the real-time priority (:func:`off_real_time`)
+START_UP_CALLS = frozenset({'boot', 'recover'})
 #: calls of a stream (at its rate) and reads that change nothing: answered without a snapshot
 NO_SNAPSHOT = frozenset({'set_targets', 'set_interaction_goal', 'status', 'trace_cycles', 'take_cycle_trace'})
 #: longest a log record waits for the link before it goes to stderr instead (s)
@@ -714,6 +719,8 @@ class _Child:
         #: the parent went without saying (its link closed, or SIGTERM): say what was left
         self.orphaned = False
         self.frozen = False
+        #: the cycle's scheduling (``can.cycle_priority``, ``can.cycle_nice``), set at setup
+        self.priority, self.nice = 0, 0
 
     def send(self, msg: Any) -> None:
         self.try_send(msg)
@@ -757,7 +764,8 @@ class _Child:
         try:
             from ..config import as_device_config
             cfg = as_device_config(cfg)
-            set_scheduling(int(cfg['can']['cycle_priority']), int(cfg['can']['cycle_nice']))
+            self.priority, self.nice = int(cfg['can']['cycle_priority']), int(cfg['can']['cycle_nice'])
+            set_scheduling(self.priority, self.nice)
             if os.sched_getscheduler(0) == os.SCHED_FIFO and not config.thread_priority:
                 # the SYNC thread one above its process: on waking it preempts the
                 # simulator's threads (which then hold the interpreter lock at most
@@ -766,18 +774,19 @@ class _Child:
             switch_us = int(cfg['can']['gil_switch_interval_us'])
             if switch_us > 0:
                 sys.setswitchinterval(switch_us * 1e-6)
-            if cfg['can']['sim']:
-                from ..sim import SimulatedBrace
-                from ..sim.brace import BraceTruth
-                send_as_record(BraceTruth)      # in every snapshot
-                self.sim = SimulatedBrace(cfg, channel=config.channel, interface=config.interface,
-                                          eds=config.eds, mechanism=config.mechanism, start=False)
-                self.sim.start()
-                info['sim'] = True
-            master = BraceMaster(config)
-            master.soft_limit_context = wrench_capacity_context(
-                master, config.mechanism, float(cfg['actuator']['max_force']))
-            self.master = master
+            with off_real_time(self.priority, self.nice):
+                if cfg['can']['sim']:
+                    from ..sim import SimulatedBrace
+                    from ..sim.brace import BraceTruth
+                    send_as_record(BraceTruth)      # in every snapshot
+                    self.sim = SimulatedBrace(cfg, channel=config.channel, interface=config.interface,
+                                              eds=config.eds, mechanism=config.mechanism, start=False)
+                    self.sim.start()
+                    info['sim'] = True
+                master = BraceMaster(config)
+                master.soft_limit_context = wrench_capacity_context(
+                    master, config.mechanism, float(cfg['actuator']['max_force']))
+                self.master = master
         except Exception as exc:  # noqa: BLE001 - the parent raises it
             info['error'] = _portable_error(exc)
         self.send_with_snapshot(lambda snap: ('ready', info, snap))
@@ -818,6 +827,13 @@ class _Child:
             log.warning('%s.%s ignored: %s', target, name, exc)
 
     def run_call(self, ident: int, target: str, name: str, payload: bytes) -> None:
+        if name in START_UP_CALLS:
+            with off_real_time(self.priority, self.nice):
+                self._run_call(ident, target, name, payload)
+        else:
+            self._run_call(ident, target, name, payload)
+
+    def _run_call(self, ident: int, target: str, name: str, payload: bytes) -> None:
         try:
             args, kwargs = pickle.loads(payload)
             op, _, path = name.rpartition(':')
@@ -923,6 +939,61 @@ def set_scheduling(priority: int, nice: int) -> str:
         log.warning('control cycle process runs at %s: %s refused; allow it with CAP_SYS_NICE or '
                     'limits.conf (rtprio %d, nice %d)', got, ' and '.join(refused), priority, nice)
     return got
+
+
+#: native ids of the threads doing start-up work off the real-time priority
+_off_real_time: set[int] = set()
+_off_lock = threading.Lock()
+
+
+@contextlib.contextmanager
+def off_real_time(priority: int, nice: int) -> Iterator[None]:
+    """The calling thread's work at normal scheduling (niceness ``nice``) while the process
+    runs at SCHED_FIFO ``priority``; afterwards every thread of the process at normal
+    scheduling (the threads this work started, the calling one) back to SCHED_FIFO
+    ``priority``, except those still inside such work. A thread already at SCHED_FIFO
+    keeps its own priority (the SYNC thread's is one above).
+
+    Start-up work (the simulator's and the master's construction; the boot's dictionary
+    checks and SDO configuration, which the simulated drives answer in the same thread) is
+    CPU for up to a second. At SCHED_FIFO it held a core against every other real-time
+    thread at the same priority: two stacks starting at once on a two-core host (a test run's
+    workers) starved a running stack's receive thread for 200 ms while its SYNC thread (one
+    above) went on, and a false "heartbeat lost" / "no TPDO1 from any drive" stop latched
+    (runs 711 and 803, bench/RESULTS.md). Nothing changes when the process is not at
+    SCHED_FIFO (``can.cycle_priority`` 0, or refused).
+    """
+    if priority <= 0 or os.sched_getscheduler(0) != os.SCHED_FIFO:
+        yield
+        return
+    tid = threading.get_native_id()
+    with _off_lock:
+        _off_real_time.add(tid)
+    try:
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+        try:
+            os.setpriority(os.PRIO_PROCESS, tid, nice)     # Linux: a thread's own niceness
+        except OSError:
+            pass
+        yield
+    finally:
+        with _off_lock:
+            _off_real_time.discard(tid)
+            raise_to_fifo(priority, skip=frozenset(_off_real_time))
+
+
+def raise_to_fifo(priority: int, *, skip: frozenset[int] = frozenset()) -> None:
+    """Every thread of this process not at SCHED_FIFO (and not in ``skip``) to SCHED_FIFO
+    ``priority``; a thread that ended meanwhile is passed over."""
+    for name in os.listdir('/proc/self/task'):
+        tid = int(name)
+        if tid in skip:
+            continue
+        try:
+            if os.sched_getscheduler(tid) != os.SCHED_FIFO:
+                os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
+        except OSError:
+            pass
 
 
 def _plain(value: Any) -> bool:
