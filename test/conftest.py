@@ -241,34 +241,12 @@ def _rcl_logging_stays_up():
 _SESSION_DDS: list = []
 
 
-#: s: the most one test (setup, call, teardown) may take before the run is ended with every
-#: thread's stack on stderr. A hang must not stall CI (its budget is 25 min): Fast DDS 3.2
-#: can deadlock when a participant of this process delivers a remote participant's removal
-#: while its own announcement timer fires (eProsima/Fast-DDS#6502: the receive thread holds
-#: the PDP mutex in unregister_timer, the event thread waits for it in
-#: set_next_announcement_interval; seen once in a full run, in a fixture's teardown). The
-#: watchdog is faulthandler's C thread: it needs no GIL, which a thread blocked in native
-#: code may hold. pytest's own ``faulthandler_timeout`` only prints the stacks: the run would
-#: still hang. Ended, an xdist worker is reported as crashed in that test and replaced, and
-#: the run goes on. The longest test takes 40 s (with its module's set-up, 2026-11-28: the
-#: interaction sway test; the interaction demo's set-up 27 s), so 180 s leaves four times that.
-TEST_LIMIT_S = 180.0
-
-
-_watchdog_out = None
-
-
 def pytest_configure(config):
-    """Where the watchdog writes: the run's real stderr. pytest's capture has fd 2 pointing
-    at a temporary file by now (lost when the watchdog ends the process); its capture
-    manager keeps the original, else a file next to the tests."""
-    global _watchdog_out
-    try:
-        capman = config.pluginmanager.getplugin('capturemanager')
-        fd = os.dup(capman._global_capturing.err.targetfd_save)
-        _watchdog_out = os.fdopen(fd, 'w')
-    except Exception:  # noqa: BLE001 - no capture (-s) or another pytest: fall back to a file
-        _watchdog_out = open(os.path.join(os.path.dirname(__file__), '..', 'test-watchdog.txt'), 'w')
+    """The per-test watchdog (:mod:`watchdog_plugin`): a test stuck in native code ends its
+    worker after ``TEST_LIMIT_S``, its stacks on the run's stderr, and is not run again."""
+    import watchdog_plugin
+    if not config.pluginmanager.is_registered(watchdog_plugin):       # -p watchdog_plugin
+        config.pluginmanager.register(watchdog_plugin, 'watchdog_plugin')
 
 
 _gc_module: list = [None]
@@ -384,11 +362,5 @@ def _in_process_cycle_as_the_cycle_process_runs(monkeypatch):
 
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item, nextitem):
-    import faulthandler
     _frozen_heap(item)
-    if _watchdog_out is not None:
-        faulthandler.dump_traceback_later(TEST_LIMIT_S, exit=True, file=_watchdog_out)
-    try:
-        yield
-    finally:
-        faulthandler.cancel_dump_traceback_later()
+    yield

@@ -636,7 +636,7 @@ def process_bring_up(device_file, extra_args):
         assert not group.failed(), f'a node process died: {group.failed()}'
     finally:
         # this process's participant goes first: it then never delivers the node processes'
-        # removal (a Fast DDS deadlock window, conftest.TEST_LIMIT_S)
+        # removal (a Fast DDS deadlock window, watchdog_plugin.TEST_LIMIT_S)
         spinner.stop()                        # no spin on a context being shut down
         executor.shutdown()
         node.destroy_node()
