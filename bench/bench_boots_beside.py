@@ -6,7 +6,7 @@ runs at SCHED_FIFO ``can.cycle_priority``; start-up work (the simulator's and th
 construction, the boot's dictionary checks and SDO configuration) is CPU for up to a second.
 Run at SCHED_FIFO, two boots held both cores against the running stack's receive thread (the
 same priority) and a false "heartbeat lost" / "no TPDO1 from any drive" stop latched (test
-runs 711 and 803). ``process.off_real_time`` runs that work at the niceness instead.
+runs 711 and 803). ``process.start_up_work`` runs that work one real-time priority below.
 
     ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST .venv/bin/python bench/bench_boots_beside.py [rounds]
 

@@ -335,31 +335,34 @@ def _threads_scheduling(pid: int) -> dict[str, tuple[int, int]]:
     return out
 
 
-_OFF_REAL_TIME = r"""
-import json, os, threading
-from brace_control.can.process import off_real_time
+_START_UP_WORK = r"""
+import json, os, sys, threading
+from brace_control.can.process import start_up_work
+
+P = int(sys.argv[1])
 
 def policy(tid=0):
     return os.sched_getscheduler(tid), os.sched_getparam(tid).sched_priority
 
 try:
-    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(30))
+    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(P))
 except OSError as exc:
     print(json.dumps({'refused': str(exc)}))
     raise SystemExit(0)
 out, hold, hold_other, entered = {}, threading.Event(), threading.Event(), threading.Event()
 ids = {}
+out['nice'] = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
 
 def park(key):
     ids[key] = threading.get_native_id()
     hold.wait()
 
 def sync_like():                       # a thread that sets its own priority, one above
-    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(31))
+    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(P + 1))
     park('sync')
 
 def other_start_up():                  # start-up work still going on when the first ends
-    with off_real_time(30, -5):
+    with start_up_work(P, -5):
         ids['other'] = threading.get_native_id()
         entered.set()
         hold_other.wait()
@@ -369,14 +372,14 @@ threads[0].start()
 threads.append(threading.Thread(target=other_start_up))
 threads[-1].start()
 entered.wait(5)
-with off_real_time(30, -5):
+with start_up_work(P, -5):
     out['inside'] = policy() + (os.getpriority(os.PRIO_PROCESS, threading.get_native_id()),)
     for target, args in ((park, ('started_inside',)), (sync_like, ())):
         threads.append(threading.Thread(target=target, args=args))
         threads[-1].start()
     while len(ids) < 4:
         pass
-    out['started_inside_while_off'] = policy(ids['started_inside'])
+    out['started_inside_while_starting'] = policy(ids['started_inside'])
 out['after'] = policy()
 for key in ('before', 'started_inside', 'sync', 'other'):
     out[key] = policy(ids[key])
@@ -388,32 +391,35 @@ print(json.dumps(out))
 """
 
 
-def test_start_up_work_runs_off_the_real_time_priority_and_its_threads_come_back_to_it():
-    """``off_real_time``, in a process of its own at SCHED_FIFO 30 (it sets every thread of
-    its process): inside, the calling thread runs at normal scheduling with its own
-    niceness, and a thread it starts inherits that; on leaving, every thread at normal
-    scheduling is back at SCHED_FIFO 30, the caller included, except one still inside
-    such work; a thread that set its own priority (31, as the SYNC thread does) keeps it.
-    Oracle: the kernel's own view of each thread (sched_getscheduler, getpriority)."""
-    out = subprocess.run([sys.executable, '-c', _OFF_REAL_TIME], capture_output=True, text=True,
-                         timeout=60, env={**os.environ, 'PYTHONPATH': os.pathsep.join(sys.path)})
+@pytest.mark.parametrize('priority', [30, 1])
+def test_start_up_work_runs_below_the_cycles_priority_and_its_threads_come_back_to_it(priority):
+    """``start_up_work``, in a process of its own at SCHED_FIFO ``priority`` (it sets every
+    thread of its process): inside, the calling thread runs at SCHED_FIFO one below (at
+    priority 1: at normal scheduling with its own niceness), and a thread it starts inherits
+    that; on leaving, every thread below is back at SCHED_FIFO ``priority``, the caller
+    included, except one still inside such work; a thread that set its own priority (one
+    above, as the SYNC thread does) keeps it. Oracle: the kernel's own view of each thread
+    (sched_getscheduler, sched_getparam, getpriority)."""
+    out = subprocess.run([sys.executable, '-c', _START_UP_WORK, str(priority)], capture_output=True,
+                         text=True, timeout=60, env={**os.environ, 'PYTHONPATH': os.pathsep.join(sys.path)})
     assert out.returncode == 0, out.stderr[-3000:]
     got = __import__('json').loads(out.stdout.strip().splitlines()[-1])
     if 'refused' in got:
         pytest.skip(f'SCHED_FIFO refused here: {got["refused"]}')
     fifo, other = os.SCHED_FIFO, os.SCHED_OTHER
-    assert got['inside'] == [other, 0, -5], got
-    assert got['started_inside_while_off'] == [other, 0], got
-    assert got['after'] == [fifo, 30], got
-    assert got['before'] == [fifo, 30], got
-    assert got['started_inside'] == [fifo, 30], got
-    assert got['sync'] == [fifo, 31], got
-    assert got['other'] == [other, 0], got          # still inside its own start-up work
-    assert got['main_after_both'] == [fifo, 30], got
+    starting = [fifo, priority - 1] if priority > 1 else [other, 0]
+    assert got['inside'] == starting + [got['nice'] if priority > 1 else -5], got
+    assert got['started_inside_while_starting'] == starting, got
+    assert got['after'] == [fifo, priority], got
+    assert got['before'] == [fifo, priority], got
+    assert got['started_inside'] == [fifo, priority], got
+    assert got['sync'] == [fifo, priority + 1], got
+    assert got['other'] == starting, got          # still inside its own start-up work
+    assert got['main_after_both'] == [fifo, priority], got
 
 
 def test_after_the_boot_every_thread_of_the_cycle_runs_at_its_real_time_priority(enabled):
-    """The child's construction and boot ran off the real-time priority (``off_real_time``);
+    """The child's construction and boot ran below the cycle's priority (``start_up_work``);
     once enabled, every thread of the child is at SCHED_FIFO ``can.cycle_priority`` and the
     SYNC thread one above (the kernel's view, /proc). Skipped where SCHED_FIFO is refused."""
     priority = int(CFG['can']['cycle_priority'])

@@ -74,7 +74,7 @@ SLOW_CALLS = frozenset({'boot', 'enable', 'disable', 'halt', 'home', 'recover', 
                         'take_up', 'shutdown'})
 #: slow calls whose work is start-up work (the boot's dictionary checks and SDO configuration,
 #: a recovery's reconfiguration), all CPU where the simulated drives answer in the caller's
-#: thread: run off the real-time priority (:func:`off_real_time`)
+#: thread: run one real-time priority below the cycle's (:func:`start_up_work`)
 START_UP_CALLS = frozenset({'boot', 'recover'})
 #: calls of a stream (at its rate) and reads that change nothing: answered without a snapshot
 NO_SNAPSHOT = frozenset({'set_targets', 'set_interaction_goal', 'status', 'trace_cycles', 'take_cycle_trace'})
@@ -774,7 +774,7 @@ class _Child:
             switch_us = int(cfg['can']['gil_switch_interval_us'])
             if switch_us > 0:
                 sys.setswitchinterval(switch_us * 1e-6)
-            with off_real_time(self.priority, self.nice):
+            with start_up_work(self.priority, self.nice):
                 if cfg['can']['sim']:
                     from ..sim import SimulatedBrace
                     from ..sim.brace import BraceTruth
@@ -828,7 +828,7 @@ class _Child:
 
     def run_call(self, ident: int, target: str, name: str, payload: bytes) -> None:
         if name in START_UP_CALLS:
-            with off_real_time(self.priority, self.nice):
+            with start_up_work(self.priority, self.nice):
                 self._run_call(ident, target, name, payload)
         else:
             self._run_call(ident, target, name, payload)
@@ -941,56 +941,62 @@ def set_scheduling(priority: int, nice: int) -> str:
     return got
 
 
-#: native ids of the threads doing start-up work off the real-time priority
-_off_real_time: set[int] = set()
-_off_lock = threading.Lock()
+#: native ids of the threads doing start-up work (:func:`start_up_work`)
+_starting: set[int] = set()
+_starting_lock = threading.Lock()
 
 
 @contextlib.contextmanager
-def off_real_time(priority: int, nice: int) -> Iterator[None]:
-    """The calling thread's work at normal scheduling (niceness ``nice``) while the process
-    runs at SCHED_FIFO ``priority``; afterwards every thread of the process at normal
-    scheduling (the threads this work started, the calling one) back to SCHED_FIFO
-    ``priority``, except those still inside such work. A thread already at SCHED_FIFO
-    keeps its own priority (the SYNC thread's is one above).
+def start_up_work(priority: int, nice: int) -> Iterator[None]:
+    """The calling thread's work one real-time priority below the cycle's while the process
+    runs at SCHED_FIFO ``priority`` (at normal scheduling, niceness ``nice``, where
+    ``priority`` is 1); afterwards every thread of the process below ``priority`` (the
+    threads this work started, the calling one) at SCHED_FIFO ``priority``, except those
+    still inside such work. A thread above keeps its priority (the SYNC thread, one above).
 
     Start-up work (the simulator's and the master's construction; the boot's dictionary
     checks and SDO configuration, which the simulated drives answer in the same thread) is
-    CPU for up to a second. At SCHED_FIFO it held a core against every other real-time
-    thread at the same priority: two stacks starting at once on a two-core host (a test run's
-    workers) starved a running stack's receive thread for 200 ms while its SYNC thread (one
-    above) went on, and a false "heartbeat lost" / "no TPDO1 from any drive" stop latched
-    (runs 711 and 803, bench/RESULTS.md). Nothing changes when the process is not at
-    SCHED_FIFO (``can.cycle_priority`` 0, or refused).
+    CPU for up to a second. At the cycle's own priority it held a core against every running
+    cycle's threads of that priority: two stacks starting at once on a two-core host (a test
+    run's workers) starved a running stack's receive thread for 200 ms while its SYNC thread
+    (one above) went on, and a false "heartbeat lost" / "no TPDO1 from any drive" stop
+    latched (runs 711 and 803, bench/RESULTS.md). At normal scheduling instead, the boot
+    waited behind the running cycles and every other process: on a host loaded 13 deep an
+    SDO answer took longer than ``can.sdo_timeout`` twice, and the configuration failed
+    (run 902). One below, a running cycle preempts it and nothing else does. Nothing changes
+    when the process is not at SCHED_FIFO (``can.cycle_priority`` 0, or refused).
     """
     if priority <= 0 or os.sched_getscheduler(0) != os.SCHED_FIFO:
         yield
         return
     tid = threading.get_native_id()
-    with _off_lock:
-        _off_real_time.add(tid)
+    with _starting_lock:
+        _starting.add(tid)
     try:
-        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-        try:
-            os.setpriority(os.PRIO_PROCESS, tid, nice)     # Linux: a thread's own niceness
-        except OSError:
-            pass
+        if priority > 1:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority - 1))
+        else:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+            with contextlib.suppress(OSError):
+                os.setpriority(os.PRIO_PROCESS, tid, nice)     # Linux: a thread's own niceness
         yield
     finally:
-        with _off_lock:
-            _off_real_time.discard(tid)
-            raise_to_fifo(priority, skip=frozenset(_off_real_time))
+        with _starting_lock:
+            _starting.discard(tid)
+            raise_to_fifo(priority, skip=frozenset(_starting))
 
 
 def raise_to_fifo(priority: int, *, skip: frozenset[int] = frozenset()) -> None:
-    """Every thread of this process not at SCHED_FIFO (and not in ``skip``) to SCHED_FIFO
-    ``priority``; a thread that ended meanwhile is passed over."""
+    """Every thread of this process below SCHED_FIFO ``priority`` (normal scheduling, or a
+    lower real-time priority), and not in ``skip``, to SCHED_FIFO ``priority``; a thread that
+    ended meanwhile is passed over."""
     for name in os.listdir('/proc/self/task'):
         tid = int(name)
         if tid in skip:
             continue
         try:
-            if os.sched_getscheduler(tid) != os.SCHED_FIFO:
+            if (os.sched_getscheduler(tid) != os.SCHED_FIFO
+                    or os.sched_getparam(tid).sched_priority < priority):
                 os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
         except OSError:
             pass
