@@ -388,3 +388,27 @@ def test_a_refused_late_splice_is_planned_again_from_the_running_motion_then_abo
     ros.spin_for(0.2)
     assert [s for _, s in stack.states('2')] == ['accepted'] * (1 + LATE_SPLICE_REPLANS) + ['aborted']
     assert [s for _, s in stack.states('1')] == ['accepted', 'cancelled']
+
+
+def test_a_refused_late_splice_with_a_newer_goal_waiting_is_superseded_not_aborted(ros):
+    """Goal 2 preempts goal 1 while it moves and the driver refuses goal 2's motion while
+    goal 3 already waits to be planned (a flood on a loaded host, run 902): goal 2 is not
+    planned again (goal 3 is, from the motion that goes on) and ends ``cancelled: superseded
+    by goal 3``, the driver's reason kept; it is not counted as a failure of its own."""
+    from brace_control.trajectory import GoalEvent, GoalRequest, GoalState
+    node, stack = start(ros)
+    stack.goal_pub.publish(pose_msg(HOME + [0.0, 0.02, 0.0], frame_id=FRAME))
+    ros.spin_until(lambda: len(stack.trajectories) == 1, what='motion 1')
+    stack.event(stack.trajectories[0], 'started')
+    stack.goal_pub.publish(pose_msg(HOME + [0.0, -0.01, 0.0], frame_id=FRAME))
+    ros.spin_until(lambda: len(stack.trajectories) == 2, what='motion 2')
+    why = ('its motion was rejected: its start is 7.276 mm (or mrad) from the command on joint 3, '
+           'more than the splice tolerance 5.000; the running motion continues')
+    waiting = (GoalRequest('3', np.asarray(HOME, float)), {})
+    with node._lock:                     # goal 3 waits: the planner has not taken it yet
+        node._pending = waiting
+        out = node._plan_late_splices_again([GoalEvent('2', GoalState.ABORTED, why)])
+        assert node._pending is waiting and '2' not in node._replans
+        node._pending = None
+    assert [(e.goal_id, e.state) for e in out] == [('2', GoalState.CANCELLED)], out
+    assert out[0].reason.startswith('superseded by goal 3: ') and 'splice tolerance' in out[0].reason

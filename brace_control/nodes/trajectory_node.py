@@ -51,11 +51,14 @@ Late splices: a preempting motion that reaches the driver after its takeover tim
 brace moves (a loaded host delays the two DDS hops past the lookahead) no longer starts where
 the running command is; the driver refuses it ("more than the splice tolerance; the running
 motion continues"). Its goal is then planned again from the motion that goes on (a second
-``accepted`` event), up to ``LATE_SPLICE_REPLANS`` times, unless a newer goal waits; only
-then is it aborted with the driver's reason.
+``accepted`` event), up to ``LATE_SPLICE_REPLANS`` times; only then is it aborted with the
+driver's reason. When a newer goal waits, the refused goal is cancelled, superseded by it (the
+newer goal is planned from the motion that goes on): in a goal flood on a loaded host a refused
+goal about to be replaced was reported aborted (run 902).
 """
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from collections.abc import Sequence
@@ -409,15 +412,21 @@ class TrajectoryNode(Node):
     def _plan_late_splices_again(self, events: list[GoalEvent]) -> list[GoalEvent]:
         """Late splices (module docstring): a goal whose motion the driver refused for its
         splice is planned again, from the motion the driver goes on with, instead of being
-        aborted; at most :data:`LATE_SPLICE_REPLANS` times, and not when a newer goal waits
-        (the newer one is planned instead). The caller holds the lock."""
+        aborted; at most :data:`LATE_SPLICE_REPLANS` times. When a newer goal waits, the
+        newer one is planned instead and the refused goal is cancelled, superseded by it. The
+        caller holds the lock."""
         kept = []
         for ev in events:
             request = self._committed
             replans = self._replans.get(ev.goal_id, 0)
-            if (ev.state is GoalState.ABORTED and SPLICE_REFUSED in ev.reason and request is not None
-                    and request.goal_id == ev.goal_id and self._pending is None and not self._closing
-                    and replans < LATE_SPLICE_REPLANS):
+            refused = (ev.state is GoalState.ABORTED and SPLICE_REFUSED in ev.reason and request is not None
+                       and request.goal_id == ev.goal_id and not self._closing)
+            if refused and self._pending is not None and self._pending[0].goal_id != ev.goal_id:
+                kept.append(dataclasses.replace(
+                    ev, state=GoalState.CANCELLED,
+                    reason=f'superseded by goal {self._pending[0].goal_id}: {ev.reason}'))
+                continue
+            if refused and self._pending is None and replans < LATE_SPLICE_REPLANS:
                 self._replans = {ev.goal_id: replans + 1}
                 self._pending = (request, {})
                 self.get_logger().warning(f'goal {ev.goal_id}: planned again ({replans + 1} of '
