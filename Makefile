@@ -31,15 +31,16 @@ demo: venv
 	$(PY) -m brace_control.demo --device $(DEVICE) --mode $(MODE) --out demo_output
 
 # pytest exits 5 when it collected no test: that is a failure here, said out loud.
-# Four pytest-xdist workers, a whole file each at a time (--dist loadfile: a module's stack
-# fixtures stay on one worker), each on its own ROS domain (test/conftest.py). A stack waits
-# more than it computes, its control cycle runs in a real-time process of its own (issue 27),
-# and a test's in-process cycle is scheduled the same way (test/conftest.py), so four share
-# two cores: about 4:45 of pytest, against 5:30 with three (bench/RESULTS.md, "sixth session").
+# Three pytest-xdist workers, a whole file each at a time (--dist loadfile: a module's stack
+# fixtures stay on one worker), each on its own ROS domain (test/conftest.py). Each stack's
+# control cycle runs in a real-time process of its own (issue 27), and the suite keeps two
+# cores busy: on a slower day of this host four workers took 7:11-7:43 of pytest and failed
+# 4 runs of 4 on starved stacks (load average 13), three took 6:13-6:50 (bench/RESULTS.md,
+# "ninth session"; four were faster on the sixth session's host, 4:45 against 5:30).
 # --no-loadscope-reorder: the files go out in test/conftest.py's order, the longest first
 # (xdist's own order, the most tests first, left the few-test bring-up files for the end).
 # TEST_WORKERS=0 runs everything in one process; timings: bench/RESULTS.md "Test suite time".
-TEST_WORKERS ?= 4
+TEST_WORKERS ?= 3
 test: venv
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder; rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "make test: pytest collected no tests" >&2; fi; \

@@ -8,6 +8,7 @@ timeout that fails the test with a message.
 from __future__ import annotations
 
 import contextlib
+import os
 import time
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
@@ -43,14 +44,63 @@ BUSY_HOST_ARGS = ['-p', 'trajectory.planning_budget:=5.0', '-p', 'safety.report_
                   '-p', 'trajectory.plan_lookahead:=0.4']
 
 
-def wait_until(predicate: Callable[[], bool], timeout: float, what: str) -> None:
+def wait_until(predicate: Callable[[], bool], timeout: float, what: str,
+               evidence: Callable[[], str] | None = None) -> None:
     """Poll ``predicate`` (every 20 ms) until true; AssertionError naming ``what`` after
-    ``timeout`` s (for tests whose nodes spin in threads of their own)."""
+    ``timeout`` s (for tests whose nodes spin in threads of their own), with what
+    ``evidence()`` says then."""
     deadline = time.monotonic() + timeout
     while not predicate():
         if time.monotonic() > deadline:
-            raise AssertionError(f'timed out waiting for {what}')
+            said = ''
+            if evidence is not None:
+                try:
+                    said = f'; {evidence()}'
+                except Exception as exc:  # noqa: BLE001 - the failure is reported anyway
+                    said = f'; no evidence: {exc!r}'
+            raise AssertionError(f'timed out waiting for {what}{said}')
         time.sleep(0.02)
+
+
+def _threads_of(pid: int) -> str:
+    """Each thread of ``pid``: name, scheduler state and where it waits (``/proc``)."""
+    out = []
+    for tid in sorted(os.listdir(f'/proc/{pid}/task'), key=int):
+        try:
+            with open(f'/proc/{pid}/task/{tid}/stat') as f:
+                stat = f.read()
+            with open(f'/proc/{pid}/task/{tid}/wchan') as f:
+                wchan = f.read().strip() or '-'
+        except OSError:
+            continue
+        name = stat[stat.index('(') + 1:stat.rindex(')')]
+        out.append(f'{name} {stat.rsplit(")", 1)[1].split()[0]} {wchan}')
+    return ', '.join(out)
+
+
+def cycle_evidence(node: Any) -> str:
+    """What a stalled in-process stack's CAN driver shows (runs 901 and 904: its truth and its
+    services went silent for 15 s on a loaded host): the age of the newest sample from its
+    control cycle's process, that process's threads, and this process's threads' stacks
+    (on stderr, captured with the test's output)."""
+    import faulthandler
+    import sys
+    parts = []
+    master = getattr(node, 'master', None)
+    try:
+        fb = master.feedback()
+        parts.append(f'newest cycle sample {time.time() - fb.wall:.1f} s old, master {master.state.value}')
+    except Exception as exc:  # noqa: BLE001
+        parts.append(f'no cycle sample: {exc!r}')
+    pid = getattr(master, 'pid', None)
+    if pid:
+        try:
+            parts.append(f'cycle process {pid}: {_threads_of(pid)}')
+        except OSError as exc:
+            parts.append(f'cycle process {pid}: {exc!r}')
+    parts.append(f'this process: {_threads_of(os.getpid())}; load {os.getloadavg()}')
+    faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
+    return '; '.join(parts)
 
 
 @contextlib.contextmanager

@@ -26,7 +26,7 @@ from brace_control import bag
 from brace_control.bringup import BringUp
 from brace_control.nodes import topics
 from brace_control.nodes.msgs import pose_msg, status_values
-from ros_helpers import BUSY_HOST_ARGS, home_and_enable, stack_in_process, wait_until as wait
+from ros_helpers import BUSY_HOST_ARGS, cycle_evidence, home_and_enable, stack_in_process, wait_until as wait
 from seed001 import leg_lengths as legs, leg_matrix
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -118,8 +118,10 @@ def test_the_sways_feasibility_oracle() -> None:
 class Truth:
     """The simulator's truth and the interaction events, as (arrival time, value)."""
 
-    def __init__(self, node) -> None:
+    def __init__(self, node, driver=None) -> None:
         self.lock = threading.Lock()
+        #: the stack's CAN driver node (its cycle's evidence when the truth stalls)
+        self.driver = driver
         self.pose: list[tuple[float, np.ndarray]] = []
         self.body: list[tuple[float, np.ndarray]] = []
         self.wrench: list[tuple[float, np.ndarray]] = []
@@ -177,7 +179,7 @@ class Truth:
             with self.lock:
                 return (bool(self.wrench_sampled) and self.wrench_sampled[-1][0] >= t1
                         and max(self.pose_at, default=0) >= hi and max(self.body_at, default=0) >= hi)
-        wait(whole, timeout, f'the truth sampled after {t1:.3f}')
+        wait(whole, timeout, f'the truth sampled after {t1:.3f}', self.evidence)
 
     def wait_trunk_at(self, pose: np.ndarray, since: float, timeout: float) -> float:
         """Wait until the trunk's true pose (``/brace/sim/body_pose``) is ``pose``; the stamp
@@ -189,8 +191,14 @@ class Truth:
                 there = [s for s, (_, b) in self.body_at.items()
                          if s >= lo and np.allclose(b, at, atol=1e-6)]
             return min(there) * 1e-9 if there else None
-        wait(lambda: first() is not None, timeout, f'the trunk at {at}')
+        wait(lambda: first() is not None, timeout, f'the trunk at {at}', self.evidence)
         return first()
+
+    def evidence(self) -> str:
+        with self.lock:
+            newest = max(self.pose_at, default=0) * 1e-9
+        return (f'newest truth sample stamped {time.time() - newest:.1f} s ago; '
+                + (cycle_evidence(self.driver) if self.driver is not None else ''))
 
     def _on_wrench(self, msg: WrenchStamped) -> None:
         # platform frame -> base: R(theta) (the ring's true theta of the same sample)
@@ -229,7 +237,7 @@ def stack(tmp_path_factory):
     extra = ['-p', f'can.channel:=inter{next(_channels)}', '-p', 'can.sync_spin_us:=0',
              '-p', 'sim.truth_rate_hz:=100.0', *BUSY_HOST_ARGS]
     with stack_in_process(LUMBAR, tmp_path_factory.mktemp('device'), extra) as b:
-        truth = Truth(b.helper)
+        truth = Truth(b.helper, b.node('can_driver_node'))
         home_and_enable(b)
         yield b, truth
 
