@@ -430,3 +430,26 @@ def test_after_the_boot_every_thread_of_the_cycle_runs_at_its_real_time_priority
     assert len(sync) == 1, threads
     assert threads.pop(sync[0]) == (os.SCHED_FIFO, priority + 1), threads
     assert set(threads.values()) == {(os.SCHED_FIFO, priority)}, threads
+
+
+def test_a_node_that_reads_nothing_for_seconds_still_gets_every_truth(enabled):
+    """The node's process stops reading the link for 4 s (its reader held: a loaded host,
+    runs 901 and 910): the child's pusher waits in its send once the link is full. Once the
+    node reads again, the simulator's truths of those 4 s arrive all the same, at
+    ``sim.truth_rate_hz``: no two consecutive truths the node has are more than 1.5 truth
+    periods apart (they were 0.8-1.4 s apart in the interaction demo's record). Oracle: the
+    truth stamps (the simulated drives' SYNC times) against the configured rate."""
+    mp = enabled
+    period = 1.0 / float(CFG['sim']['truth_rate_hz'])
+    wait_for(lambda: len(mp.sim.truths_since(0.0)) > 3, 5, 'truths from the child')
+    t0 = time.time()
+    with mp._truths_lock:                 # the reader stops in its next sample's truth
+        time.sleep(4.0)
+    t1 = time.time()
+    wait_for(lambda: any(t.stamp > t1 + 0.3 for t in mp.sim.truths_since(t0)), 10,
+             'truths after the reader resumed')
+    stamps = np.array([t.stamp for t in mp.sim.truths_since(t0 - 2 * period) if t.stamp <= t1 + 0.3])
+    assert stamps[0] <= t0 and stamps[-1] >= t1, (stamps[0] - t0, stamps[-1] - t1)
+    gaps = np.diff(stamps)
+    assert gaps.max() <= 1.5 * period, f'a hole of {gaps.max():.3f} s in the truth (period {period} s)'
+    assert mp.state is MasterState.ENABLED, mp.faults

@@ -43,6 +43,7 @@ import gc
 import io
 import itertools
 import logging
+import math
 import os
 import pickle
 import signal
@@ -165,6 +166,10 @@ class Snapshot:
     feedback: Feedback
     events: tuple[ExecutionEvent, ...]    # execution events since the previous snapshot
     truth: Any = None                     # the simulator's truth of the feedback's SYNC
+    #: the simulator's truths (at ``sim.truth_rate_hz``) between the previous snapshot sent and
+    #: this one, when more than a truth period lies between them (the link was full: the node's
+    #: process read nothing for a while); oldest first, ``truth`` not included
+    missed: tuple = ()
 
 
 send_as_record(Snapshot)
@@ -445,9 +450,11 @@ class MasterProcess:
             with self._events_lock:
                 self._events.extend(snap.events)
         truth = snap.truth
-        if truth is not None and (not self._truths or truth.stamp > self._truths[-1].stamp):
+        if truth is not None:
             with self._truths_lock:
-                self._truths.append(truth)
+                for t in snap.missed + (truth,):
+                    if not self._truths or t.stamp > self._truths[-1].stamp:
+                        self._truths.append(t)
         self._snapshot = snap
         if periodic and self._on_snapshot is not None:
             self._fresh.set()             # the callback runs in its own thread (it may call)
@@ -721,6 +728,8 @@ class _Child:
         self.frozen = False
         #: the cycle's scheduling (``can.cycle_priority``, ``can.cycle_nice``), set at setup
         self.priority, self.nice = 0, 0
+        #: the newest truth's stamp sent (wall clock, s) and the truth's period (s, setup)
+        self.truth_sent, self.truth_period = 0.0, math.inf
 
     def send(self, msg: Any) -> None:
         self.try_send(msg)
@@ -741,12 +750,33 @@ class _Child:
 
     def send_with_snapshot(self, make: Callable[[Snapshot | None], Any]) -> None:
         """Take a snapshot and send it (inside ``make``'s message) under one lock: the parent
-        gets them in the order they were taken, each event once."""
+        gets them in the order they were taken, each event once, and every truth at
+        ``sim.truth_rate_hz`` (:meth:`with_missed_truths`)."""
         try:
             with self.send_lock:
-                self.conn.send_bytes(link_dumps(make(self.snapshot())))
+                self.conn.send_bytes(link_dumps(make(self.with_missed_truths(self.snapshot()))))
         except (OSError, ValueError):
             self.stop.set()
+
+    def with_missed_truths(self, snap: Snapshot | None) -> Snapshot | None:
+        """``snap`` with the simulator's truths since the last snapshot sent, when more than a
+        truth period lies between the two (``Snapshot.missed``). A node process that read
+        nothing for seconds (a loaded host) filled the link: the pusher waited in its send
+        with the snapshot it had taken, and the truths of the time in between were never
+        taken (runs 901 and 910: holes of 0.8-1.4 s in the interaction demo's recorded
+        truth, a third of a sway's samples gone). Within the simulator's record
+        (``sim.brace.TRUTH_RECORD_S``)."""
+        truth = None if snap is None else snap.truth
+        recorded_since = getattr(self.sim, 'recorded_since', None)
+        if truth is None or recorded_since is None:
+            return snap
+        last, self.truth_sent = self.truth_sent, max(self.truth_sent, truth.stamp)
+        period = self.truth_period
+        if not last or truth.stamp - last <= 1.5 * period:
+            return snap
+        missed = tuple(t for t in recorded_since(last + 0.5 * period)
+                       if t.stamp <= truth.stamp - 0.5 * period)
+        return dataclasses.replace(snap, missed=missed) if missed else snap
 
     def snapshot(self) -> Snapshot | None:
         if self.master is None:
@@ -779,6 +809,7 @@ class _Child:
                     from ..sim import SimulatedBrace
                     from ..sim.brace import BraceTruth
                     send_as_record(BraceTruth)      # in every snapshot
+                    self.truth_period = 1.0 / float(cfg['sim']['truth_rate_hz'])
                     self.sim = SimulatedBrace(cfg, channel=config.channel, interface=config.interface,
                                               eds=config.eds, mechanism=config.mechanism, start=False)
                     self.sim.start()

@@ -108,6 +108,9 @@ __all__ = ['SimulatedBrace', 'BraceTruth']
 NOISE_BLOCK = 500
 #: SYNCs of ground truth kept for :meth:`SimulatedBrace.truth_at`
 TRUTH_HISTORY = 64
+#: s of ground truth kept at ``sim.truth_rate_hz`` for :meth:`SimulatedBrace.recorded_since`
+#: (as long as the ground-truth topics keep it for a reader, ``topics.TRUTH_KEPT_S``)
+TRUTH_RECORD_S = 5.0
 #: s: rest poses closer than this are samples of one motion of the trunk (its rate is
 #: their difference over the interval); farther apart, each is a step
 REST_STREAM_GAP_S = 0.2
@@ -357,6 +360,10 @@ class SimulatedBrace:
         self.load_cell_override: list[float | None] = [None] * n
         self._truth = self._physics(0.0)
         self._history: deque[BraceTruth] = deque([self._truth], maxlen=TRUTH_HISTORY)
+        #: the truth at ``sim.truth_rate_hz`` (a SYNC at least a period after the last kept)
+        self._record_period = 1.0 / float(sim['truth_rate_hz'])
+        self._record: deque[BraceTruth] = deque(
+            [self._truth], maxlen=math.ceil(TRUTH_RECORD_S / self._record_period) + 1)
         self.faults = FaultInjector(self)
         if start:
             self.start()
@@ -412,6 +419,20 @@ class SimulatedBrace:
         with self.lock:
             history = tuple(self._history) or (self._truth,)
         return min(history, key=lambda t: abs(t.stamp - stamp))
+
+    def recorded_since(self, stamp: float) -> list[BraceTruth]:
+        """The truths kept at ``sim.truth_rate_hz`` stamped after ``stamp`` (wall clock,
+        s), oldest first, among the last :data:`TRUTH_RECORD_S`: what a reader that missed
+        them for a while (the control cycle's process, its link to the node full) still
+        has to send."""
+        out: list[BraceTruth] = []
+        with self.lock:
+            for truth in reversed(self._record):
+                if truth.stamp <= stamp:
+                    break
+                out.append(truth)
+        out.reverse()
+        return out
 
     def set_rest_pose(self, pose: np.ndarray, stamp: float | None = None) -> None:
         """Move the body's rest pose (the patient moves): the physics pulls the platform
@@ -601,6 +622,8 @@ class SimulatedBrace:
         with self.lock:
             self._truth = truth
             self._history.append(truth)
+            if truth.stamp - self._record[-1].stamp >= self._record_period - 0.5 * dt:
+                self._record.append(truth)
         for d in self.drives:
             d.on_sync(dt, phase='comm')
         if self.module is not None:
