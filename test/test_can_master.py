@@ -37,6 +37,10 @@ def pose_delta(dpose):
     return MECH.inverse(HOME + np.asarray(dpose)) - MECH.inverse(HOME)
 _ids = itertools.count()
 SLACK = 0.05      # s of scheduling slack on every bound
+#: s a test waits to see a latch it then judges by the latch's own time (``Fault.time``, taken
+#: in the cycle), not by when this thread saw it: a test thread the host served late saw a
+#: stale-feedback latch 60 ms after the mute (run 913; the bound is 6 ms + SLACK)
+OBSERVE_S = 1.0
 CPM = 8192 / 0.001            # counts per metre (YAML)
 PERIOD = 0.002                # s, SYNC at 500 Hz (YAML)
 
@@ -378,10 +382,11 @@ def _recover_and_enable(master):
 def test_fault_heartbeat_silenced(rig):
     """Bound: consumer time 150 ms after the last heartbeat (≤ 150 ms) + slack."""
     sim, master = rig
+    t0 = time.monotonic()
     sim.faults.silence_heartbeat(2)
-    t = wait_for(_latched(master, FaultKind.HEARTBEAT_LOST, 'a2'), 0.15 + SLACK, 'heartbeat fault')
+    wait_for(_latched(master, FaultKind.HEARTBEAT_LOST, 'a2'), OBSERVE_S, 'heartbeat fault')
     wait_for(lambda: stopped(master), 0.05, 'protective stop')
-    assert t <= 0.15 + SLACK
+    assert _fault_after(master, {FaultKind.HEARTBEAT_LOST}, t0) <= 0.15 + SLACK
     _recover_refused(master, FaultKind.HEARTBEAT_LOST)
     sim.faults.silence_heartbeat(2, False)
     wait_for(lambda: master.status().drives[1].heartbeat_age < 0.06, 0.2, 'heartbeat back')
@@ -430,12 +435,13 @@ def test_a_receive_thread_behind_is_not_a_lost_heartbeat(rig):
 def test_fault_emcy_with_drive_fault(rig):
     """Bound: the EMCY frame itself (≤ 1 period) + slack."""
     sim, master = rig
+    t0 = time.monotonic()
     sim.faults.send_emcy(1, 0x7305, fault=True)
-    t = wait_for(_latched(master, FaultKind.EMCY, 'a1'), 0.002 + SLACK, 'EMCY fault')
+    wait_for(_latched(master, FaultKind.EMCY, 'a1'), OBSERVE_S, 'EMCY fault')
     wait_for(lambda: stopped(master), 0.02, 'protective stop')
     assert master.supervisor.first.code == 0x7305
     assert 'incremental sensor 1 fault' in master.supervisor.summary()
-    assert t < 0.002 + SLACK
+    assert _fault_after(master, {FaultKind.EMCY}, t0) < 0.002 + SLACK
     _recover_refused(master, FaultKind.EMCY)           # the drive stays in FAULT
     sim.faults.clear_emcy_fault(1)
     _recover_ok(master)
@@ -471,9 +477,10 @@ def test_error_passive_warns_without_stopping(rig):
 def test_fault_stale_tpdo(rig):
     """Bound: stale_periods (3) SYNC periods = 6 ms + slack."""
     sim, master = rig
+    t0 = time.monotonic()
     sim.faults.mute_tpdo(3)
-    t = wait_for(_latched(master, FaultKind.STALE_FEEDBACK, 'a3'), 0.006 + SLACK, 'stale fault')
-    assert t < 0.006 + SLACK
+    wait_for(_latched(master, FaultKind.STALE_FEEDBACK, 'a3'), OBSERVE_S, 'stale fault')
+    assert _fault_after(master, {FaultKind.STALE_FEEDBACK}, t0) < 0.006 + SLACK
     _recover_refused(master, FaultKind.STALE_FEEDBACK)
     sim.faults.mute_tpdo(3, False)
     _recover_ok(master)
