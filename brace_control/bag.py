@@ -69,8 +69,11 @@ __all__ = [
 #: ``record`` after its stop (SIGINT, SIGTERM, ``--duration``): it goes on taking what was
 #: already published until this long passes without a message ...
 RECORD_DRAIN_QUIET_S = 0.25
-#: ... and at most this long
-RECORD_DRAIN_MAX_S = 2.0
+#: ... and at most this long (nothing new is published by then when the stack stopped first,
+#: as the demos stop it: the drain ends as soon as the backlog is taken. 2 s was too short
+#: for a recorder a loaded host kept seconds behind: the interaction demo's bag lost the
+#: session's last statuses, its position goal's success and the mode's 'stopped', 2026-11-29)
+RECORD_DRAIN_MAX_S = 10.0
 
 #: History depth of a replayed topic whose recording does not say (``ros2 bag record`` sees
 #: other publishers' history as UNKNOWN, depth 0) -- and the pacing window of KEEP_ALL.
