@@ -12,7 +12,7 @@ import os
 import time
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import pytest
 import rclpy
@@ -62,8 +62,19 @@ def wait_until(predicate: Callable[[], bool], timeout: float, what: str,
         time.sleep(0.02)
 
 
-def _threads_of(pid: int) -> str:
-    """Each thread of ``pid``: name, scheduler state and where it waits (``/proc``)."""
+class KernelThread(NamedTuple):
+    """One thread as the kernel has it (``/proc/<pid>/task/<tid>``)."""
+    tid: int
+    name: str
+    state: str          # R running, S sleeping, D, Z ...
+    policy: int         # os.SCHED_OTHER, os.SCHED_FIFO, ...
+    rt_priority: int
+    wchan: str          # where it waits ('-': nowhere)
+
+
+def kernel_threads(pid: int) -> list[KernelThread]:
+    """Each thread of ``pid`` (``/proc/<pid>/task/*/stat`` fields 3, 41 and 40, and
+    ``wchan``); one that ended meanwhile is passed over."""
     out = []
     for tid in sorted(os.listdir(f'/proc/{pid}/task'), key=int):
         try:
@@ -73,9 +84,15 @@ def _threads_of(pid: int) -> str:
                 wchan = f.read().strip() or '-'
         except OSError:
             continue
-        name = stat[stat.index('(') + 1:stat.rindex(')')]
-        out.append(f'{name} {stat.rsplit(")", 1)[1].split()[0]} {wchan}')
-    return ', '.join(out)
+        fields = stat.rsplit(')', 1)[1].split()
+        out.append(KernelThread(int(tid), stat[stat.index('(') + 1:stat.rindex(')')], fields[0],
+                                int(fields[38]), int(fields[37]), wchan))
+    return out
+
+
+def _threads_of(pid: int) -> str:
+    """Each thread of ``pid``: name, scheduler state and where it waits."""
+    return ', '.join(f'{t.name} {t.state} {t.wchan}' for t in kernel_threads(pid))
 
 
 def cycle_evidence(node: Any) -> str:

@@ -22,6 +22,7 @@ from brace_control.can import ActuatorTrajectory, DriverError, FaultKind, Master
 from brace_control.can.process import MasterProcess
 from brace_control.config import load_device_config
 from brace_control.mechanisms import mechanism_from_config
+from ros_helpers import kernel_threads
 from rpr_oracles import min_jerk
 from test_can_master import wait_for
 
@@ -321,18 +322,8 @@ def test_the_cycle_trace_records_every_sync_and_each_goals_arrival_in_the_child(
 
 def _threads_scheduling(pid: int) -> dict[str, tuple[int, int]]:
     """Each thread of ``pid``: its name -> (policy, real-time priority), as the kernel has
-    them (``/proc/<pid>/task/*/stat`` fields 41 and 40)."""
-    out = {}
-    for tid in os.listdir(f'/proc/{pid}/task'):
-        try:
-            with open(f'/proc/{pid}/task/{tid}/stat') as f:
-                text = f.read()
-        except FileNotFoundError:
-            continue                          # ended meanwhile
-        name = text[text.index('(') + 1:text.rindex(')')]
-        fields = text.rsplit(')', 1)[1].split()
-        out[f'{name}/{tid}'] = (int(fields[38]), int(fields[37]))
-    return out
+    them (:func:`ros_helpers.kernel_threads`)."""
+    return {f'{t.name}/{t.tid}': (t.policy, t.rt_priority) for t in kernel_threads(pid)}
 
 
 _START_UP_WORK = r"""
