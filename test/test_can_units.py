@@ -159,27 +159,88 @@ def test_bus_load_estimate_of_docs_can_md():
     assert 0.54 < bits / 0.002 / 1e6 < 0.55
 
 
-def test_periodic_loop_keeps_absolute_deadlines():
+class _ScriptedClock:
+    """A ``time`` stand-in for brace_control.can.timing: ``perf_counter`` advances 1 us per read
+    (a spin ends), ``sleep`` wakes ``oversleep`` late, the loop's body advances it by the work
+    it was scripted to take."""
+
+    def __init__(self, rng):
+        self.now = 100.0
+        self.rng = rng
+
+    def perf_counter(self):
+        self.now += 1e-6
+        return self.now
+
+    def sleep(self, s):
+        # the kernel's overshoot: mostly under the spin's 0.3 ms, sometimes a preemption of up to
+        # 5 periods
+        over = self.rng.choice([self.rng.uniform(0.0, 2e-4), self.rng.uniform(0.0, 0.01)],
+                               p=[0.9, 0.1])
+        self.now += s + over
+
+
+def test_periodic_loop_keeps_absolute_deadlines(monkeypatch):
+    """run_periodic on a scripted clock, judged by the definition of absolute deadlines: the
+    grid is start + j·period; each tick wakes at the first grid deadline not yet passed when the
+    previous cycle's work ended (the ones passed are skipped and counted as overruns), and no
+    later than the sleep's own overshoot beyond it; never early. The scripted work is mostly
+    short, sometimes over a period, once a 1.84 s stall (the stalls a loaded host gave)."""
+    from brace_control.can import timing
+    period, n = 0.002, 400
+    rng = np.random.default_rng(11)
+    clock = _ScriptedClock(rng)
+    monkeypatch.setattr(timing, 'time', clock)
+    work = rng.choice([1e-4, 1.5e-3, 3.1e-3, 7.9e-3], size=n, p=[0.7, 0.2, 0.07, 0.03])
+    work[150] = 1.84
+    ticks, ends = [], []
+
+    def body(k, t):
+        ticks.append(t)
+        clock.now += work[k]
+        ends.append(clock.now)
+
+    stats = PeriodStats(period)
+    start = clock.now                   # the grid's origin: run_periodic reads the clock next
+    run_periodic(period, body, threading.Event(), stats=stats, max_cycles=n)
+    ticks, ends = np.array(ticks), np.array(ends)
+    assert len(ticks) == n and stats.cycles == n
+    skipped = 0
+    for m in range(n):
+        if m == 0:
+            j = 1
+        else:
+            j = math.floor((ends[m - 1] - start) / period) + 1      # first grid point after the end
+            j = max(j, j_prev + 1)
+            skipped += j - j_prev - 1
+        deadline = start + j * period
+        # the grid point itself (within the clock's reads), or the sleep's overshoot past it
+        assert deadline - 1e-5 <= ticks[m] <= deadline + 0.0101, (m, ticks[m] - deadline)
+        j_prev = j
+    assert stats.overruns == skipped and skipped >= 920        # the stall alone skips 919-920
+    # not a relative sleep: 400 ticks plus the skipped deadlines, on the grid to the end
+    assert (ticks[-1] - start) / period == pytest.approx(n + skipped, abs=5.1)
+
+
+def test_periodic_loop_on_the_real_clock_is_never_early_and_keeps_its_grid():
+    """The same loop on the machine's clock. What a loaded host cannot change: no tick before its
+    deadline; the median tick within half a period of the grid (a relative sleep drifts by its
+    latency every tick: tens of periods by the end). How often it wakes late is the scheduler's
+    business: measured in bench/bench_can.py's bare floor, not here."""
     stats = PeriodStats(0.002)
     ticks, missed = [], []              # each tick's wake time, and the misses counted before it
     start = time.perf_counter()
     run_periodic(0.002, lambda k, t: (ticks.append(t), missed.append(stats.overruns)),
                  threading.Event(), stats=stats, max_cycles=200)
-    rep = stats.report()
-    # absolute deadlines: the m-th tick wakes on the grid start + (1 + g)·period, g = m plus the
-    # deadlines missed (skipped and counted) before it, never early, late by a scheduling
-    # latency, not by one that adds up tick after tick as a relative sleep's would. The grid's
-    # origin is taken before the call, not from the first tick: that one may itself be late
-    # (beside two other test workers it was 1.6 periods late, one miss)
+    # the m-th tick wakes on the grid start + (1 + g)·period, g = m plus the deadlines missed
+    # (skipped and counted) before it. The grid's origin is taken before the call, not from the
+    # first tick: that one may itself be late
     phase = (np.array(ticks) - start) / 0.002 - 1.0
     grid = np.arange(200) + np.array(missed)
     late = phase - grid
     assert np.all(late >= 0.0), late
-    # a tick preempted in its spin wakes a period late, and its miss is counted at the next:
-    # rare; the grid holds for the others
-    assert np.mean(late < 1.0) > 0.9, late
     assert np.median(late) < 0.5, late
-    assert rep.cycles == 200 and rep.p50 < 0.001
+    assert stats.cycles == 200
 
 
 def test_the_feedbacks_samples_answer_the_newest_sync_every_drive_answered():
