@@ -142,7 +142,8 @@ def test_the_prediction_extrapolates_the_rise_per_displacement_to_the_motion_s_e
 
     hit = run(75.0)
     assert hit is not None and hit[0] == 0
-    j, load, rise, moved, ahead = hit
+    j, load, rise, moved, ahead, further = hit
+    assert further == 0.010                     # 10 mm to go, within ten times the 2.5 mm seen
     assert ahead == pytest.approx(load + rise / moved * 0.010, rel=1e-9)
     assert rise / moved == pytest.approx(2000.0, rel=1e-6)         # 2 N per mm
     assert run(90.0, togo=0.010) is None                           # 60 + 2.6 .. + 20 < 90
@@ -150,6 +151,38 @@ def test_the_prediction_extrapolates_the_rise_per_displacement_to_the_motion_s_e
     assert run(75.0, slope=0.0) is None
     assert run(75.0, moved=False) is None
     assert run(75.0, togo=0.0) is None                             # at its end: nothing ahead
+
+
+def test_a_start_transient_is_not_carried_far_beyond_the_stroke_it_was_seen_over():
+    """Run 906 (the 4-RPR neck brace's way home after a soft stop at 33 N of a 40 N limit): at a
+    motion's start the stroke is microns while the load cells feel the drives' acceleration.
+    Here the static load falls 1.5 N per mm (the head's stiffness, moving home), the measured
+    load carries a transient rising to 0.6 N over the first 60 ms, and the motion starts as a
+    minimum-jerk one (stroke ~ t^3) with 34 mm to go. Carried over the whole way to go (the
+    old arithmetic: premise) that rise made a load of hundreds of newtons; it is carried at most
+    SOFT_AHEAD (10) times the stroke seen: nothing predicted, and the load stays below its limit
+    all the way."""
+    from brace_control.safety.wrench import SOFT_AHEAD
+    assert SOFT_AHEAD == 10.0
+    total, T = 0.034, 1.2                                   # 34 mm home in 1.2 s
+
+    def hits(ahead):
+        pred, out, loads = LoadPrediction(floor=0.5, window_s=0.05, rise=0.01, ahead=ahead), [], []
+        for k in range(300):                                # 500 Hz, 0.6 s
+            t = 0.002 * k
+            s = t / T
+            x = total * (10 * s**3 - 15 * s**4 + 6 * s**5)  # minimum jerk
+            load = 33.3 - 1500.0 * x + 0.6 * min(t / 0.06, 1.0)
+            loads.append(load)
+            hit = pred(t, [load], [40.0], [x], lambda: total - x)
+            if hit:
+                out.append(hit)
+        assert max(loads) < 40.0
+        return out
+
+    old = hits(math.inf)
+    assert old and old[0][4] > 100.0, old[:1]               # premise: the start transient braked
+    assert hits(SOFT_AHEAD) == []
 
 
 def test_the_hard_tier_latches_above_max_wrench_and_its_cause_is_solved_afresh():

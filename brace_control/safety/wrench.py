@@ -32,7 +32,8 @@ import numpy as np
 from .verdict import OK, Action, Verdict
 
 __all__ = ['PlatformWrench', 'LoadPrediction', 'WrenchTiers', 'ForcePrediction', 'wrench_axis',
-           'POSE_PERIOD_S', 'SOFT_FLOOR', 'SOFT_WINDOW_S', 'SOFT_RISE', 'SOFT_STREAM_S']
+           'POSE_PERIOD_S', 'SOFT_FLOOR', 'SOFT_WINDOW_S', 'SOFT_RISE', 'SOFT_STREAM_S',
+           'SOFT_AHEAD']
 
 #: s: the longest the pose behind the wrench map may be old while the positions change
 POSE_PERIOD_S = 0.01
@@ -49,6 +50,11 @@ SOFT_WINDOW_S = 0.05
 SOFT_RISE = 0.01
 #: s of a setpoint stream's future counted as "the motion's end" (a stream has no end)
 SOFT_STREAM_S = 0.25
+#: a rise is carried at most this many times the stroke it was seen over (ten windows of travel
+#: at the present speed, 0.5 s). At a motion's start the stroke of a window is microns while
+#: the load cells see the drives' acceleration: 0.42 N in 0.01 mm carried over the 34 mm home
+#: made 1452 N of a load that was falling (a neck brace's way back from a soft stop)
+SOFT_AHEAD = 10.0
 
 
 def wrench_axis(mechanism: Any, j: int) -> tuple[str, str]:
@@ -157,23 +163,26 @@ class PlatformWrench:
 class LoadPrediction:
     """The soft tiers' prediction (docs/safety.md §14): a load (per wrench axis or per
     actuator) whose rise per actuator displacement over the last :data:`SOFT_WINDOW_S`,
-    carried over the distance the motion has still to go, would pass its limit by the
-    motion's end. Looked at from :data:`SOFT_FLOOR` of the limit up; a rise within
-    :data:`SOFT_RISE` of the limit is noise. A load that stays below its limit is left alone:
-    the prediction is the load at the motion's end, not a fixed share of the limit."""
+    carried over the distance the motion has still to go (at most :data:`SOFT_AHEAD` times the
+    stroke the rise was seen over), would pass its limit by the motion's end. Looked at from
+    :data:`SOFT_FLOOR` of the limit up; a rise within :data:`SOFT_RISE` of the limit is noise. A
+    load that stays below its limit is left alone: the prediction is the load at the motion's
+    end, not a fixed share of the limit."""
 
     def __init__(self, *, floor: float = SOFT_FLOOR, window_s: float = SOFT_WINDOW_S,
-                 rise: float = SOFT_RISE) -> None:
+                 rise: float = SOFT_RISE, ahead: float = SOFT_AHEAD) -> None:
         self.floor, self.window_s, self.rise = float(floor), float(window_s), float(rise)
+        self.ahead = float(ahead)
         self._trend: deque[tuple[float, Sequence[float], Sequence[float]]] = deque()
 
     def clear(self) -> None:
         self._trend.clear()
 
     def __call__(self, now: float, load: Sequence[float], limit: Sequence[float], q: Sequence[float],
-                 distance_to_go: Callable[[], float | None]) -> tuple[int, float, float, float, float] | None:
-        """``(j, load_j, rise_j, moved, ahead_j)`` of the first load predicted past its limit,
-        else ``None``. ``distance_to_go()``: the actuator-space distance (m or rad) left of
+                 distance_to_go: Callable[[], float | None]) -> tuple[int, float, float, float, float, float] | None:
+        """``(j, load_j, rise_j, moved, ahead_j, further)`` of the first load predicted past its
+        limit, else ``None``; ``ahead_j = load_j + rise_j / moved · further``, ``further = min(to
+        go, SOFT_AHEAD · moved)``. ``distance_to_go()``: the actuator-space distance (m or rad) left of
         the running motion, ``None`` when none runs (called only from the floor up)."""
         trend = self._trend
         trend.append((now, load, q))
@@ -191,20 +200,22 @@ class LoadPrediction:
         togo = distance_to_go()
         if togo is None:
             return None
+        togo = min(togo, self.ahead * moved)
         for j, (x, x_old, m) in enumerate(zip(load, load_old, limit)):
             rise = x - x_old
             ahead = x + max(rise, 0.0) / moved * togo
             if x > floor * m and rise > self.rise * m and ahead > m:
-                return j, float(x), float(rise), moved, float(ahead)
+                return j, float(x), float(rise), moved, float(ahead), float(togo)
         return None
 
 
 def _soft_reason(tier: str, what: str, unit: str, limit_name: str, limit: float,
-                 hit: tuple[int, float, float, float, float]) -> str:
-    _, load, rise, moved, ahead = hit
+                 hit: tuple[int, float, float, float, float, float]) -> str:
+    _, load, rise, moved, ahead, further = hit
     return (f'{tier}: {what} at {load:.1f} {unit}, rising {rise:.2f} {unit} in the last '
-            f'{moved * 1e3:.2f} mm (or mrad) of the motion, would reach {ahead:.1f} {unit} by its '
-            f'end, above {limit_name} = {limit:g} {unit}; decelerated along the path, holding')
+            f'{moved * 1e3:.2f} mm (or mrad) of the motion, would reach {ahead:.1f} {unit} '
+            f'{further * 1e3:.2f} mm (or mrad) further on, above {limit_name} = {limit:g} {unit}; '
+            f'decelerated along the path, holding')
 
 
 class WrenchTiers:
