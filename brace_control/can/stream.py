@@ -7,7 +7,10 @@ sender's rate; :meth:`SetpointStream.feed` (the SYNC thread, under the motion's 
 * a new setpoint is step-checked (docs/safety.md §7) over the smaller of the time between its
   stamp and the previous one and the time between their arrivals, plus one period (a sender's
   clock cannot license a jump); a violation latches a STEP_LIMIT stop;
-* setpoints whose stamps do not increase are counted as rejected and reported once per burst;
+* setpoints whose stamps do not increase are rejected as they arrive (a setpoint is compared
+  with the newest one kept, whether or not the cycle took that one: a burst that arrived
+  within one period is judged in the order it was sent), counted, and reported once per burst
+  by the cycle;
 * no setpoint for ``safety.command_timeout`` stops the stream (docs/safety.md §1): the
   executor decelerates along the current direction and holds.
 """
@@ -54,6 +57,11 @@ class SetpointStream:
         self._last_position: np.ndarray | None = None
         self._was_fresh = False
         self._stamp_burst = False
+        #: the newest stamp kept by receive (None: no stamped setpoint since the stream began)
+        self._newest_stamp: float | None = None
+        #: (stamp, the newest kept) of the first setpoint refused since the cycle last reported
+        self._refused: tuple[float, float] | None = None
+        self._reported = 0                         # rejections the cycle has reported
         self.stale_holds = 0
         self.accepted = 0
         self.rejected = 0
@@ -69,6 +77,17 @@ class SetpointStream:
         limits = self._life.limits
         now = time.perf_counter()
         stamp = None if stamp is None else float(stamp)
+        newest = self._newest_stamp
+        if stamp is not None and newest is not None and stamp <= newest:
+            # not a newer command: refused here, not only if the cycle happens to look at it
+            # (run 1002: two setpoints of one stamp within a period; the cycle took the second
+            # as a stream's first, and the brace moved 2.75 mm)
+            if self._refused is None:
+                self._refused = (stamp, newest)
+            self.rejected += 1
+            return
+        if stamp is not None:
+            self._newest_stamp = stamp
         prev = self._received
         if velocity is None and prev is not None and now - prev.time <= limits.command_timeout:
             interval = (stamp - prev.stamp if stamp is not None and prev.stamp is not None
@@ -86,7 +105,7 @@ class SetpointStream:
         """A new stream from the command in force (the drives enabled): nothing received
         before counts, and the first setpoint is checked from the command."""
         self.drop()
-        self._last_stamp = None
+        self._last_stamp = self._newest_stamp = None
         self._last_time = -math.inf
         self._last_position = None
         self._was_fresh = False
@@ -111,6 +130,21 @@ class SetpointStream:
                                  f'= {limits.command_timeout * 1e3:.0f} ms): decelerating to rest')
             self.stale_holds += 1
             executor.stream_stale()
+        if self.rejected != self._reported:      # after the take: refused ones came after it
+            self._report_rejected()
+
+    def _report_rejected(self) -> None:
+        """The setpoints refused for their stamps since the last report: logged once per burst
+        (until a setpoint is accepted), counted in the driver's warnings."""
+        self._reported = self.rejected
+        refused, self._refused = self._refused, None
+        if not self._stamp_burst and refused is not None:
+            self._stamp_burst = True
+            log.warning('setpoint rejected: its stamp %.6f s does not follow the previous '
+                        'one %.6f s (stamps must increase); further ones of this burst are '
+                        'counted, not logged', *refused)
+        self._life.supervisor.warn('setpoint_stamps', f'{self.rejected} setpoint(s) '
+                                   'rejected: stamps not increasing')
 
     def _accept(self, sp: _Setpoint, executor: PathExecutor) -> None:
         """docs/safety.md §7 on a new setpoint, then hand it to the executor."""
@@ -121,14 +155,10 @@ class SetpointStream:
         self.taken_seq = sp.seq
         prev_stamp, prev_time = self._last_stamp, self._last_time
         if sp.stamp is not None and prev_stamp is not None and sp.stamp <= prev_stamp:
+            # (receive refuses these; one kept before a restart of the stream may get here)
             self.rejected += 1
-            if not self._stamp_burst:
-                self._stamp_burst = True
-                log.warning('setpoint rejected: its stamp %.6f s does not follow the previous '
-                            'one %.6f s (stamps must increase); further ones of this burst are '
-                            'counted, not logged', sp.stamp, prev_stamp)
-            supervisor.warn('setpoint_stamps', f'{self.rejected} setpoint(s) '
-                            'rejected: stamps not increasing')
+            self._refused = self._refused or (sp.stamp, prev_stamp)
+            self._report_rejected()
             return
         self._stamp_burst = False
         arrival = sp.time - prev_time
