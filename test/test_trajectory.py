@@ -645,6 +645,45 @@ def test_a_ring_inside_by_less_than_the_encoders_resolve_is_no_success(mech, lim
             assert f'x {2 * sigma[0] * 1e3:.2f} mm' in events[0].reason, events[0].reason
 
 
+def test_an_abort_inside_the_tolerance_says_what_the_confirmation_saw(mech, limits):
+    """Run 1002 (vendor drives, cia402_slave): goal aborted 'x off by 0.48 mm (tolerance 2.00
+    mm) ... inside the tolerance by less than the estimate resolves (2 sigma: x 0.02 mm)': a
+    reason that could not be true. The abort says what kept the estimates from a success:
+    estimates scattered inside the tolerance (|mean| + 2 sigma of the last 0.05 s beyond it,
+    computed here from the estimates sent), or a run inside too short for the confirmation
+    before the settle time ran out."""
+    goal = HOME + [0.0, 0.01, 0.05]
+
+    def run_with(errors_x, stamps):
+        run = make_runner(mech, limits, Profile.MINIMUM_JERK)
+        submit(run, '1', goal, 0.0, tag=4)
+        run.on_execution(4, 'started', '', None, now=0.1)
+        run.on_execution(4, 'finished', '', lumbar_eq3(goal), now=2.0)
+        events = []
+        for dx, t in zip(errors_x, stamps):
+            events += run.on_estimate(goal + [dx, 0.0, 0.0], stamp=t, now=t)
+        events += run.check(2.6)
+        assert [(e.goal_id, e.state) for e in events] == [('1', GoalState.ABORTED)], events
+        return events[0].reason
+
+    # scattered: 0.2 and 1.9 mm in turn, 10 ms apart, all inside the 2 mm
+    stamps = [2.01 + 0.01 * i for i in range(56)]
+    xs = [0.0002 if i % 2 else 0.0019 for i in range(56)]
+    why = run_with(xs, stamps)
+    window = np.array(xs[-6:])                      # the last 0.05 s: six estimates
+    judged = abs(window.mean()) + 2.0 * window.std()
+    assert judged > TOL[0]                          # premise
+    assert 'by less than the estimates scattered' in why, why
+    assert f'x {judged * 1e3:.2f} mm' in why, why
+    assert 'resolves' not in why
+    # outside until 0.53 s after the motion, then inside: 2.53 .. 2.56, 0.03 s of it when the
+    # settle time (0.5 s, plus the confirmation's 0.05 s once inside) has run out
+    xs = [0.003 if t < 2.53 - 1e-9 else 0.0005 for t in stamps]
+    why = run_with(xs, stamps)
+    assert 'inside the tolerance for 0.030 s of estimates at most, not the 0.05 s' in why, why
+    assert '(56 estimates since the motion finished)' in why, why
+
+
 def test_the_settle_time_runs_on_the_estimates_stamps_not_on_their_arrival(mech, limits):
     """On a loaded host the estimates arrive late: a platform at the goal whose estimates
     (stamped 10 ms apart from the motion's end) reach the runner 0.8 s late succeeds, and

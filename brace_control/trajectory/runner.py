@@ -147,6 +147,13 @@ class _Goal:
     resolution: np.ndarray | None = None
     #: stamp of the newest estimate since the motion finished (the settle time runs on it)
     last_stamp: float | None = None
+    #: the last confirmation's window (docs: honest outcomes): |mean| + 2 sigma per
+    #: coordinate, and its scatter (std) alone; None: no run inside lasted SETTLE_CONFIRM_S
+    judged: np.ndarray | None = None
+    scatter: np.ndarray | None = None
+    #: the longest run of estimates inside the tolerance (s, by their stamps)
+    longest_inside: float = 0.0
+    estimates: int = 0                    # estimates since the motion finished
 
 
 class TrajectoryRunner:
@@ -407,6 +414,7 @@ class TrajectoryRunner:
         if goal is None or goal.finished_at is None or stamp < goal.finished_at:
             return []
         goal.last_stamp = stamp if goal.last_stamp is None else max(goal.last_stamp, stamp)
+        goal.estimates += 1
         signed = self._estimate - goal.target
         err = np.abs(signed)
         if goal.best_error is None or np.max(err / self.pose_tolerance) < np.max(goal.best_error / self.pose_tolerance):
@@ -418,6 +426,7 @@ class TrajectoryRunner:
         if goal.inside_since is None:
             goal.inside_since = stamp
         goal.inside.append((stamp, signed))
+        goal.longest_inside = max(goal.longest_inside, stamp - goal.inside_since)
         if stamp - goal.inside_since >= SETTLE_CONFIRM_S - 1e-9:
             # the estimates of the last SETTLE_CONFIRM_S: their mean plus twice their scatter
             # inside the tolerance (a ring resting at its edge is not judged on the noise of
@@ -427,8 +436,10 @@ class TrajectoryRunner:
             window = np.array([e for _, e in goal.inside])
             if goal.resolution is None:
                 goal.resolution = self.resolution_sigma(goal.target)
-            sigma = np.hypot(window.std(axis=0), goal.resolution)
-            if np.all(np.abs(window.mean(axis=0)) + 2.0 * sigma <= self.pose_tolerance):
+            goal.scatter = window.std(axis=0)
+            sigma = np.hypot(goal.scatter, goal.resolution)
+            goal.judged = np.abs(window.mean(axis=0)) + 2.0 * sigma
+            if np.all(goal.judged <= self.pose_tolerance):
                 self._goal = None
                 return [GoalEvent(goal.goal_id, GoalState.SUCCEEDED, '', goal.target, goal.duration,
                                   goal.profile, {'final_error': err.tolist()})]
@@ -457,10 +468,7 @@ class TrajectoryRunner:
                                   'finished: where the platform is cannot be told')]
             why = 'the platform did not follow: ' + self.describe_error(goal.best_error)
             if np.all(goal.best_error <= self.pose_tolerance):
-                # inside, but never by the estimate's uncertainty (scatter, last count)
-                res = goal.resolution if goal.resolution is not None else self.resolution_sigma(goal.target)
-                why += ('; inside the tolerance by less than the estimate resolves (2 sigma of '
-                        f'the encoder counts: {self.describe_values(2.0 * res)})')
+                why += '; ' + self._why_unconfirmed(goal)
             return [GoalEvent(goal.goal_id, GoalState.ABORTED, why,
                               values={'final_error': goal.best_error.tolist()})]
         if m is not None and m.tag == goal.tag:
@@ -516,6 +524,23 @@ class TrajectoryRunner:
     @staticmethod
     def _fmt(value: float, scale: float, unit: str, decimals: int) -> str:
         return f'{value * scale:.{decimals}f}{unit}' if decimals >= 0 else f'{value:.4g}'
+
+    def _why_unconfirmed(self, goal: _Goal) -> str:
+        """Why estimates inside the tolerance made no success: what the confirmation saw."""
+        res = goal.resolution if goal.resolution is not None else self.resolution_sigma(goal.target)
+        if goal.judged is None:
+            # (the settle time ran out first, or the runs inside kept being broken)
+            return (f'inside the tolerance for {goal.longest_inside:.3f} s of estimates at most, '
+                    f'not the {SETTLE_CONFIRM_S:g} s a success needs ({goal.estimates} estimates '
+                    'since the motion finished)')
+        if np.all(goal.scatter <= res):
+            # inside, but never by the estimate's uncertainty (the last count)
+            return ('inside the tolerance by less than the estimate resolves (2 sigma of the '
+                    f'encoder counts: {self.describe_values(2.0 * res)})')
+        return ('inside the tolerance by less than the estimates scattered: their last '
+                f'{SETTLE_CONFIRM_S:g} s gave |mean| + 2 sigma of {self.describe_values(goal.judged)} '
+                f'(scatter {self.describe_values(goal.scatter)}, 2 sigma of the encoder counts '
+                f'{self.describe_values(2.0 * res)})')
 
     def describe_error(self, err: np.ndarray) -> str:
         """The final error per coordinate against the tolerance, in mm / deg where it helps."""
