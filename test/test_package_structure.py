@@ -213,6 +213,38 @@ def test_the_dictionarys_data_type_codes_are_canopens():
     assert issubclass(plan.DictionaryError, can.CanInitializationError)
 
 
+def test_the_fast_dds_2_profile_is_the_same_profile_in_its_own_spelling():
+    """config/fastdds2_discovery.xml (Humble, Jazzy) holds the same elements and values as
+    config/fastdds_discovery.xml (Kilted), the writer's times spelled as Fast DDS 2's XML
+    spells them (camel case), and the writers' heartbeat is the 0.1 s both promise."""
+    import re
+    import xml.etree.ElementTree as ET
+
+    from brace_control.config import config_dir
+
+    def flat(path, camel):
+        out = []
+        for el in ET.parse(path).iter():
+            tag = el.tag
+            if camel:       # heartbeatPeriod -> heartbeat_period
+                tag = re.sub(r'(?<=[a-z])([A-Z])', lambda m: '_' + m.group(1).lower(), tag)
+            out.append((tag, (el.text or '').strip(), tuple(sorted(el.attrib.items()))))
+        return out
+    three = flat(config_dir() / 'fastdds_discovery.xml', camel=False)
+    two = flat(config_dir() / 'fastdds2_discovery.xml', camel=True)
+    # the discovery part's own names are camel case in both: compare after the same mapping
+    three_cmp = [(re.sub(r'(?<=[a-z])([A-Z])', lambda m: '_' + m.group(1).lower(), t), x, a)
+                 for t, x, a in three]
+    assert two == three_cmp
+    raw_two = ET.parse(config_dir() / 'fastdds2_discovery.xml')
+    raw_three = ET.parse(config_dir() / 'fastdds_discovery.xml')
+    for tree, tag in ((raw_two, 'heartbeatPeriod'), (raw_three, 'heartbeat_period')):
+        (period,) = tree.iter(tag)
+        assert (period.findtext('sec'), period.findtext('nanosec')) == ('0', '100000000')
+        writer = next(tree.iter('data_writer'))
+        assert writer.get('is_default_profile') == 'true'
+
+
 def test_the_discovery_profile_is_taken_unless_the_user_has_one():
     """``use_discovery_profile`` points Fast DDS 3's variable at the package's profile, and
     Fast DDS 2's too on Humble, Iron and Jazzy (Kilted's RMW warns at every participant when
@@ -227,10 +259,11 @@ def test_the_discovery_profile_is_taken_unless_the_user_has_one():
     env: dict[str, str] = {}
     assert use_discovery_profile(env) == ours
     assert env == {'FASTDDS_DEFAULT_PROFILES_FILE': ours}
+    ours_2 = str(config_dir() / 'fastdds2_discovery.xml')           # Fast DDS 2's XML
     for distro in ('humble', 'jazzy'):
         env = {'ROS_DISTRO': distro}
-        assert use_discovery_profile(env) == ours
-        assert env == {'ROS_DISTRO': distro, **dict.fromkeys(PROFILE_VARIABLES, ours)}
+        assert use_discovery_profile(env) == ours_2
+        assert env == {'ROS_DISTRO': distro, **dict.fromkeys(PROFILE_VARIABLES, ours_2)}
     env = {'RMW_IMPLEMENTATION': 'rmw_fastrtps_dynamic_cpp'}
     assert use_discovery_profile(env) == ours and env['FASTDDS_DEFAULT_PROFILES_FILE'] == ours
     for name in PROFILE_VARIABLES:
