@@ -428,14 +428,21 @@ def _truth_stamp_offset() -> float:
 def _largest_steps(rec: Record, t0: float, instants: dict[str, float], half: float = 0.3
                    ) -> dict[str, tuple[float, float]]:
     """Per named instant (monotonic), the largest change of the true actuator velocity
-    (m/s) and force (N) between consecutive truth samples within ``half`` s of it."""
+    (m/s) and force (N) between consecutive truth samples within ``half`` s of it, per median
+    sample interval: a change over a longer interval than the median counts in proportion
+    (the bounds of :func:`_step_bounds` are rates times the median interval; the simulator
+    records its truth by the SYNCs' times, and a late SYNC makes one interval longer: run
+    1004, a force step 1.18 times the bound)."""
     ts, _, v, f = rec.joints_between(t0)
+    dt = float(np.median(np.diff(ts)))
     offset = _truth_stamp_offset()
     out = {}
     for name, t in instants.items():
         m = (ts >= t + offset - half) & (ts <= t + offset + half)
         assert m.sum() > 20, f'{name}: {m.sum()} truth samples around it'
-        out[name] = (float(np.max(np.abs(np.diff(v[m], axis=0)))), float(np.max(np.abs(np.diff(f[m], axis=0)))))
+        longer = np.maximum(np.diff(ts[m]) / dt, 1.0)[:, None]
+        out[name] = (float(np.max(np.abs(np.diff(v[m], axis=0)) / longer)),
+                     float(np.max(np.abs(np.diff(f[m], axis=0)) / longer)))
     return out
 
 
