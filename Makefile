@@ -19,10 +19,15 @@ venv: $(VENV)/.installed
 # PYTHONDONTWRITEBYTECODE set (this machine sets it) every process would otherwise compile
 # every module it imports, each time (a node's start: 0.40 -> 0.30 s of CPU; bench/RESULTS.md,
 # "sixth session").
+# The requirements go in with uv (pinned here; pip installs it): the same packages as pip
+# resolves, in 6 s from its cache instead of pip's 20-40 s (bench/RESULTS.md, "tenth
+# session"); UV_LINK_MODE=copy: its cache may be on another filesystem than the checkout.
+UV_VERSION := 0.13.9
+
 $(VENV)/.installed: requirements.txt setup.py setup.cfg package.xml
 	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -r requirements.txt
+	$(PY) -m pip install --quiet uv==$(UV_VERSION)
+	UV_LINK_MODE=copy $(VENV)/bin/uv pip install --quiet --python $(PY) -r requirements.txt
 	$(PY) -m pip install --quiet --no-deps --no-build-isolation -e .
 	$(PY) -m compileall -q brace_control
 	touch $@
