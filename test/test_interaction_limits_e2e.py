@@ -426,13 +426,14 @@ def _truth_stamp_offset() -> float:
 
 
 def _largest_steps(rec: Record, t0: float, instants: dict[str, float], half: float = 0.3
-                   ) -> dict[str, tuple[float, float]]:
+                   ) -> dict[str, tuple[float, float, str]]:
     """Per named instant (monotonic), the largest change of the true actuator velocity
     (m/s) and force (N) between consecutive truth samples within ``half`` s of it, per median
     sample interval: a change over a longer interval than the median counts in proportion
     (the bounds of :func:`_step_bounds` are rates times the median interval; the simulator
     records its truth by the SYNCs' times, and a late SYNC makes one interval longer: run
-    1004, a force step 1.18 times the bound)."""
+    1004, a force step 1.18 times the bound). Third: the truth samples around the largest
+    force step (time from the instant, velocities, forces), for a failure's message."""
     ts, _, v, f = rec.joints_between(t0)
     dt = float(np.median(np.diff(ts)))
     offset = _truth_stamp_offset()
@@ -441,8 +442,14 @@ def _largest_steps(rec: Record, t0: float, instants: dict[str, float], half: flo
         m = (ts >= t + offset - half) & (ts <= t + offset + half)
         assert m.sum() > 20, f'{name}: {m.sum()} truth samples around it'
         longer = np.maximum(np.diff(ts[m]) / dt, 1.0)[:, None]
-        out[name] = (float(np.max(np.abs(np.diff(v[m], axis=0)) / longer)),
-                     float(np.max(np.abs(np.diff(f[m], axis=0)) / longer)))
+        dvs = np.abs(np.diff(v[m], axis=0)) / longer
+        dfs = np.abs(np.diff(f[m], axis=0)) / longer
+        # the samples around the largest force step, for a failure's message
+        k = int(np.argmax(np.max(dfs, axis=1)))
+        rows = np.flatnonzero(m)[max(0, k - 3):k + 5]
+        evidence = '; '.join(f't {ts[i] - (t + offset):+.3f} s v {np.round(v[i] * 1e3, 2).tolist()} mm/s '
+                             f'f {np.round(f[i], 2).tolist()} N' for i in rows)
+        out[name] = (float(np.max(dvs)), float(np.max(dfs)), evidence)
     return out
 
 
@@ -509,16 +516,16 @@ def test_start_at_rest_and_stop_while_moving_have_no_step(stack):
     new = gap > 0                                         # a stamp published twice counts once
     speed = float(np.max(np.abs(np.diff(q, axis=0))[new] / gap[new][:, None]))
     print(f'\ntransitions (truth every {dt * 1e3:.0f} ms): ' + ', '.join(
-        f'{k}: |dv| {dv * 1e3:.2f} mm/s, |df| {df:.2f} N' for k, (dv, df) in steps.items())
+        f'{k}: |dv| {dv * 1e3:.2f} mm/s, |df| {df:.2f} N' for k, (dv, df, _) in steps.items())
         + f'; bounds {dv_bound * 1e3:.1f} mm/s, {df_bound:.1f} N; true speed max {speed * 1e3:.1f} mm/s; '
           f'{count} setpoints, largest step beyond v_max dt {excess * 1e6:.1f} um '
           f'(step_margin {STEP_MARGIN * 1e6:.0f} um)')
     assert speed <= V_MAX
     if count:                                             # the stream, where there is one
         assert excess <= STEP_MARGIN
-    for name, (dv, df) in steps.items():
-        assert dv <= dv_bound, (name, dv)
-        assert df <= df_bound, (name, df)
+    for name, (dv, df, evidence) in steps.items():
+        assert dv <= dv_bound, (name, dv, evidence)
+        assert df <= df_bound, (name, df, evidence)
 
 
 def test_a_position_goal_takes_over_from_a_moving_interaction_without_a_step(stack):
@@ -549,9 +556,9 @@ def test_a_position_goal_takes_over_from_a_moving_interaction_without_a_step(sta
     settled(rec, instants['position goal'])
     steps = _largest_steps(rec, t0, instants)
     _, dv_bound, df_bound = _step_bounds(rec, t0)
-    for name, (dv, df) in steps.items():
-        assert dv <= dv_bound, (name, dv)
-        assert df <= df_bound, (name, df)
+    for name, (dv, df, evidence) in steps.items():
+        assert dv <= dv_bound, (name, dv, evidence)
+        assert df <= df_bound, (name, df, evidence)
 
 
 # docs/safety.md §19
