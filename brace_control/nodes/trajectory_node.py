@@ -539,15 +539,13 @@ class TrajectoryNode(Node):
                       GoalEvent(pending[0].goal_id, GoalState.ABORTED,
                                 'shutdown: the trajectory node stopped')] + events
         self._report(events)
-        # the last words reach the subscribers before the process goes (reliable: acked):
-        # these, and a goal's end reported just before (run 1015: a goal the driver's own
-        # shutdown aborted, its status published, the process gone before a loaded host
-        # delivered it). Nothing unacknowledged: no wait
-        if not self._status_pub.wait_for_all_acked(Duration(seconds=SHUTDOWN_ACK_S)):
-            self.get_logger().warning(
-                f'shutdown: not every reader of {topics.GOAL_STATUS} acknowledged the last '
-                f'statuses within {SHUTDOWN_ACK_S:g} s '
-                f'({self._status_pub.get_subscription_count()} matched)')
+        if events:
+            # the last words reach the subscribers before the process goes (reliable: acked)
+            if not self._status_pub.wait_for_all_acked(Duration(seconds=SHUTDOWN_ACK_S)):
+                self.get_logger().warning(
+                    f'shutdown: not every reader of {topics.GOAL_STATUS} acknowledged the last '
+                    f'statuses within {SHUTDOWN_ACK_S:g} s '
+                    f'({self._status_pub.get_subscription_count()} matched)')
         if self._planner.is_alive() and self._planner is not threading.current_thread():
             self._planner.join(timeout=2.0)
 
