@@ -282,3 +282,47 @@ def test_a_truth_publisher_that_falls_behind_publishes_the_truths_it_missed(ros,
     rate = 20.0
     assert gaps.max() < 1.6 / rate, gaps                # no hole: at most a tick late
     assert np.median(gaps) == pytest.approx(1.0 / rate, abs=0.006), gaps
+
+
+def test_a_trunk_stream_sent_while_the_executor_stood_still_moves_the_trunk_without_a_step(ros, driver):
+    """A patient streams its trunk's rest pose (``/brace/sim/body_rest``, 50 Hz, a 6 mm ramp
+    over 1.18 s) while this node's executor stands still (a starved process): once it runs,
+    the simulator plays the whole stream out by its stamps. The trunk's true pose
+    (``/brace/sim/body_pose``) never moves faster than the ramp's rate times the play-out's
+    catch-up (``REST_STREAM_CATCH_UP``), and it ends at the last sample. A reader that kept
+    only the newest samples saw its first one 1 s into the ramp: a step of 5 mm."""
+    from geometry_msgs.msg import PoseStamped
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    from brace_control.nodes import topics
+    from brace_control.nodes.msgs import pose_msg
+    from brace_control.sim.brace import REST_STREAM_CATCH_UP
+    probe = ros.node('patient')
+    pub = probe.create_publisher(PoseStamped, topics.SIM_BODY_REST, topics.BODY_REST_QOS)
+    bodies = ros.collect(probe, PoseStamped, topics.SIM_BODY_POSE,
+                         QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE))
+    ros.wait_matched(pub)
+    ros.spin_until(lambda: len(bodies) >= 3, 3.0, '/brace/sim/body_pose')
+    rest = np.array([0.0, 0.390, 0.0872664626])      # sim.rest_pose of the lumbar YAML
+    rise, n, period = 0.006, 60, 0.02
+    t0 = probe.get_clock().now().nanoseconds
+    for k in range(n):                                # the executor stands still meanwhile
+        pose = rest + np.array([0.0, rise * k / (n - 1), 0.0])
+        pub.publish(pose_msg(pose, frame_id='brace_base', mechanism=None, stamp=rclpy_time(
+            t0 + int(k * period * 1e9))))
+    end = rest[1] + rise
+    ros.spin_until(lambda: abs(bodies[-1].pose.position.y - end) < 1e-7, 5.0,
+                   lambda: f'the trunk at the stream\'s end ({end:.4f} m): at {bodies[-1].pose.position.y:.4f}')
+    seen = sorted({(b.header.stamp.sec + b.header.stamp.nanosec * 1e-9, b.pose.position.y) for b in bodies})
+    t = np.array([s for s, _ in seen])
+    y = np.array([v for _, v in seen])
+    rate = np.abs(np.diff(y)) / np.diff(t)
+    bound = REST_STREAM_CATCH_UP * rise / ((n - 1) * period)
+    assert rate.max() <= 1.2 * bound, (f'the trunk moved at {rate.max() * 1e3:.1f} mm/s (the stream '
+                                       f'{bound / REST_STREAM_CATCH_UP * 1e3:.2f} mm/s)')
+    assert np.count_nonzero(np.diff(y) > 0) >= 10            # it went through the ramp
+
+
+def rclpy_time(ns: int):
+    from rclpy.time import Time
+    return Time(nanoseconds=ns).to_msg()

@@ -500,7 +500,7 @@ class CanDriverNode(LifecycleNode):
         from .kinetics_node import platform_frame_wrench
         from .msgs import pose_kind, pose_msg, wrench_msg
         self.create_subscription(PoseStamped, topics.SIM_BODY_REST, self._on_body_rest,
-                                 topics.STATE_QOS, callback_group=self._stream_group)
+                                 topics.BODY_REST_QOS, callback_group=self._stream_group)
         rate = float(self.cfg['sim']['truth_rate_hz'])
         qos = topics.truth_qos(rate)
         self._truth_pubs = tuple(self.create_lifecycle_publisher(t, name, qos) for t, name in (

@@ -16,6 +16,7 @@ __all__ = [
     'SIM_POSE', 'SIM_WRENCH', 'WRENCH_GOAL', 'INTERACTION_GOAL', 'SIM_BODY_REST', 'SIM_BODY_POSE',
     'BRINGUP',
     'GOAL_QOS', 'TRAJECTORY_QOS', 'SETPOINT_QOS', 'STATE_QOS', 'TRUTH_QOS', 'TRUTH_KEPT_S', 'truth_qos',
+    'BODY_REST_QOS',
     'MEASURED_QOS', 'STATUS_QOS',
     'GOAL_STATUS_QOS', 'GOAL_STATUS_DEPTH',
     'LATCHED_QOS', 'DIAGNOSTICS_QOS',
@@ -112,6 +113,16 @@ TRUTH_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
 #: recorder starved for a second on a loaded host lost 100 samples of a 100 Hz truth kept
 #: 100 deep: the interaction demo's report found a hole in its step window)
 TRUTH_KEPT_S = 5.0
+
+#: The simulated patient's trunk (``/brace/sim/body_rest``), reliable, 250 deep (5 s of a
+#: 50 Hz stream). The simulator plays a stream of rest poses out by their stamps, and a gap
+#: between stamps longer than ``sim.brace.REST_STREAM_GAP_S`` is a new motion: a step to the
+#: new pose. A reader 10 deep lost the older samples of whatever arrived while the driver's
+#: executor stood still for more than 0.2 s, and the trunk jumped 9 mm in one SYNC (the
+#: interaction-limits tests' force steps of 6-12 N on a loaded host). Publishers use it too:
+#: a reliable writer's history is what it can still send to a reader that fell behind.
+BODY_REST_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=250,
+                           reliability=ReliabilityPolicy.RELIABLE)
 
 
 def truth_qos(rate_hz: float) -> QoSProfile:
