@@ -67,6 +67,9 @@ STOPPED_MOVE_S = 2.5
 #: m: the true actuators "do not move": peak-to-peak of the true lengths (the simulator's
 #: position loop holds to a fraction of an encoder count, 0.12 um)
 STILL = 2e-6
+#: m: the ring at least this far from the goal (largest actuator) when a stop is sent: it must
+#: brake more than 1 mm short of it (:func:`_stop_mid_goal`)
+STOP_JUDGED_LEFT = 3e-3
 
 
 # ----------------------------------------------------------------------------- bring-up
@@ -465,19 +468,32 @@ def _stop_mid_goal(op: Operator, stop: str, stopped_state: str) -> None:
     stopped; ``~/enable`` re-anchors and a safe goal succeeds. From a known start, timed
     (``STOPPED_MOVE_S``): from wherever the previous test left the ring the move was as short
     as a few mm on Fitts' time, and a stop the test's process sent late on a loaded host
-    (run 702) came when the ring was within 1 mm of the goal."""
+    (run 702) came when the ring was within 1 mm of the goal. Braked short of the goal is
+    judged where the ring was when the test sent the stop (the truth stamped then): with
+    more than :data:`STOP_JUDGED_LEFT` still to go, the ring stops more than 1 mm short (the
+    brake takes ~1.4 mm at the move's peak speed, ~0.45 mm at the 8 mm/s it has 3 mm before
+    the goal: the distance goes with the speed squared); a test process the host served so late
+    that the ring was already closer cannot tell a brake from an arrival (runs 1015, 1017:
+    0.67 and 0.56 mm from the goal when the call left), and says so."""
     op.goal_succeeds(SAFE_GOALS[1])
     start = op.true_lengths()
     target = SAFE_GOALS[2]
+    goal_q = op.dev.lengths(target)
     gid = op.path([target], times=[STOPPED_MOVE_S])
     op.wait_travel(start, target, 0.3)
+    sent = op.now_ns()
     ok, msg = op.driver(stop)
     assert ok, msg
     end = op.end(gid)
     assert end['state'] == 'aborted' and stop in end['reason'], end
     op.wait_state(stopped_state)
     at_rest = op.wait_rest()
-    assert np.max(np.abs(at_rest - op.dev.lengths(target))) > 1e-3, 'not braked: it reached the goal'
+    left = np.max(np.abs(goal_q - [q for t, q, _, _ in op.truth() if t <= sent][-1]))
+    if left > STOP_JUDGED_LEFT:
+        assert np.max(np.abs(at_rest - goal_q)) > 1e-3, \
+            f'not braked: it reached the goal ({left * 1e3:.2f} mm to go when the stop was sent)'
+    else:
+        print(f'the stop was sent {left * 1e3:.2f} mm from the goal: braking short not judged')
     since = op.now_ns()
     op.wait_samples(50)
     check_still(op.probe, since, op.now_ns())
