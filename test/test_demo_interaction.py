@@ -113,7 +113,11 @@ def test_interaction_report_numbers_agree_with_the_recorded_truth(demo):
         tw.append((s - t0) * 1e-9)
     fy, mz, tw = np.array(fy), np.array(mz), np.array(tw)
     in_sway = (tw >= a) & (tw <= b)
-    assert in_sway.sum() > 50
+    assert in_sway.sum() > 50, (f'{in_sway.sum()} wrench samples in the window [{a:.2f}, {b:.2f}] s; '
+                                f'the sway [{(sway["start_ns"] - t0) * 1e-9:.2f}, '
+                                f'{(sway["end_ns"] - t0) * 1e-9:.2f}] s; the interaction events '
+                                f'{[(round(t, 2), st) for t, st in inter]}; wrench samples '
+                                f'{tw.min():.2f}-{tw.max():.2f} s')
     zt = report['zero_torque']['max_wrench_true']
     assert zt['Fy'] == pytest.approx(np.max(np.abs(fy[in_sway])), rel=1e-3, abs=1e-3)
     assert zt['Mz'] == pytest.approx(np.max(np.abs(mz[in_sway])), rel=1e-3, abs=1e-4)

@@ -163,13 +163,16 @@ class Record:
         with self.lock:
             return np.array([r[2] for r in self.pose if t0 <= r[0] <= t1]).reshape(-1, 3)
 
-    def wrench_between(self, t0: float, t1: float = math.inf) -> np.ndarray:
+    def wrench_between(self, t0: float, t1: float = math.inf, *, stamps: bool = False):
         """:func:`ring_wrench` of the truth samples in [t0, t1] (joint states and pose of
-        the identical stamp: the simulator publishes both per truth sample)."""
+        the identical stamp: the simulator publishes both per truth sample); with
+        ``stamps``, also their stamps (s)."""
         with self.lock:
             poses = {r[1]: r[2] for r in self.pose}
-            rows = [(poses[r[1]], r[4]) for r in self.joints if t0 <= r[0] <= t1 and r[1] in poses]
-        return ring_wrench(np.array([p for p, _ in rows]).reshape(-1, 3), np.array([f for _, f in rows]).reshape(-1, 3))
+            rows = [(poses[r[1]], r[4], r[1]) for r in self.joints if t0 <= r[0] <= t1 and r[1] in poses]
+        w = ring_wrench(np.array([p for p, _, _ in rows]).reshape(-1, 3),
+                        np.array([f for _, f, _ in rows]).reshape(-1, 3))
+        return (w, np.array([st * 1e-9 for _, _, st in rows])) if stamps else w
 
     def driver_state(self) -> dict:
         with self.lock:
@@ -581,12 +584,15 @@ def test_wrench_capacity_holds_while_the_patient_turns_towards_the_singularity(s
     poses = rec.poses_between(t0)
     caps = np.array([moment_capacity(p) for p in poses])
     _, _, _, f = rec.joints_between(t0)
-    w = rec.wrench_between(t0)
-    print(f'\ncapacity: min theta {math.degrees(poses[:, 2].min()):.2f} deg, min Mz capacity '
+    w, ws = rec.wrench_between(t0, stamps=True)
+    k = int(np.argmax(np.abs(w[:, 2])))
+    around = '; '.join(f't {ws[i] - ws[k]:+.3f} s Mz {w[i, 2]:+.3f}' for i in range(max(0, k - 4), min(len(w), k + 4)))
+    print(f'\nlargest |Mz| {ws[k] - ws[0]:.2f} s after the first sample of {ws[-1] - ws[0]:.2f} s: {around}')
+    print(f'capacity: min theta {math.degrees(poses[:, 2].min()):.2f} deg, min Mz capacity '
           f'{caps.min():.3f} N·m (limit {MIN_MZ_CAPACITY}), max |f| {np.abs(f).max():.2f} N, '
           f'max |Mz| on the ring {np.abs(w[:, 2]).max():.3f} N·m; {reason}')
     assert caps.min() >= 0.99 * MIN_MZ_CAPACITY
-    assert np.max(np.abs(w[:, 2])) <= 0.1 + MOMENT_TOLERANCE_NM
+    assert np.max(np.abs(w[:, 2])) <= 0.1 + MOMENT_TOLERANCE_NM, around
     assert np.max(np.abs(f)) < SOFT_FORCE_LIMIT_N
     assert rec.driver_state().get('state') == 'enabled'
     # not stuck at the boundary: a goal back home (the capacity rising along the path) runs
