@@ -723,6 +723,22 @@ def test_setpoints_whose_stamps_do_not_increase_are_counted_and_reported(rig):
     assert master.feedback().position == pytest.approx(q0, abs=1e-6)      # nothing moved
 
 
+@pytest.mark.parametrize('stamp', [math.nan, math.inf, '20.0', True])
+def test_a_setpoint_stamp_that_is_not_a_finite_number_is_refused_naming_it(rig, stamp):
+    """A NaN stamp compares false with every stamp: taken, it would pass the stream's order
+    check and switch it off for every setpoint after it (a frozen-stamp stream then moves
+    the brace, run 1002). Refused with a ValueError naming the stamp; nothing moves, and
+    the stream's order check still holds for the setpoints that follow."""
+    sim, master = rig
+    q0 = master.feedback().position.copy()
+    master.set_targets(q0, stamp=30.0)
+    with pytest.raises(ValueError, match='stamp'):
+        master.set_targets(q0 + pose_delta([0.0, 0.0005, 0.0]), stamp=stamp)
+    master.set_targets(q0 + pose_delta([0.0, 0.0005, 0.0]), stamp=30.0)      # not newer
+    wait_for(lambda: master.status().rejected_setpoints >= 1, 0.2, 'the old stamp refused')
+    assert master.feedback().position == pytest.approx(q0, abs=1e-6)
+
+
 def test_stamped_stream_faster_than_v_max_latches_a_step_limit(rig):
     """Stamps 5 ms apart, steps of 1 mm: 200 mm/s > v_max = 65 mm/s (+ 0.5 mm margin)."""
     sim, master = rig

@@ -52,6 +52,7 @@ from __future__ import annotations
 
 import logging
 import math
+import numbers
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -278,9 +279,14 @@ class BraceMaster:
         STEP_LIMIT stop), takes it over from a running trajectory, and stops the stream
         when no setpoint arrives for ``safety.command_timeout`` (docs/safety.md §1).
 
-        :raises ValueError: wrong length, non-finite, or outside the stroke (docs/safety.md §5, §6);
+        :raises ValueError: wrong length, non-finite, or outside the stroke (docs/safety.md §5, §6),
+            or a stamp that is not a finite number (NaN compares false with every stamp: it
+            would pass the stream's order check and turn it off for the setpoints after it);
             nothing is sent.
         """
+        if stamp is not None and (isinstance(stamp, bool) or not isinstance(stamp, numbers.Real)
+                                  or not math.isfinite(stamp)):
+            raise ValueError(f'setpoint stamp {stamp!r}: expected a finite number of seconds or None')
         arr = self._checked_positions(positions, 'target')
         self.stream.receive(arr, stamp, checked_velocities(velocities, arr, self.names))
 
