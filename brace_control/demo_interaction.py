@@ -238,7 +238,7 @@ class _Patient:
         from .nodes.msgs import pose_kind
         self.node, self.mech, self.base_frame = node, mech, base_frame
         self.kind = pose_kind(mech)
-        self.rest_pub = node.create_publisher(PoseStamped, topics.SIM_BODY_REST, topics.BODY_REST_QOS)
+        self.rest_pub = node.create_publisher(PoseStamped, topics.SIM_BODY_REST, topics.STATE_QOS)
         self.goal_pub = node.create_publisher(WrenchStamped, topics.WRENCH_GOAL, topics.GOAL_QOS)
         self.pose_goal_pub = node.create_publisher(PoseStamped, topics.POSE_GOAL, topics.GOAL_QOS)
         self.lock = threading.Lock()

@@ -259,7 +259,7 @@ def move_body(b: BringUp, pub, start: np.ndarray, goal: np.ndarray, duration: fl
 def test_zero_torque_mode_follows_a_swaying_patient_and_holds_wrench_goals(stack) -> None:
     b, truth = stack
     sim = b.node('can_driver_node').sim
-    rest_pub = b.helper.create_publisher(PoseStamped, topics.SIM_BODY_REST, topics.BODY_REST_QOS)
+    rest_pub = b.helper.create_publisher(PoseStamped, topics.SIM_BODY_REST, topics.STATE_QOS)
     goal_pub = b.helper.create_publisher(WrenchStamped, topics.WRENCH_GOAL, topics.GOAL_QOS)
     wait(lambda: len(truth.pose) > 5 and len(truth.wrench) > 5, 10, 'the truth topics')
     # the driver's command at every SYNC (the in-cycle admittance's output), the wall time of

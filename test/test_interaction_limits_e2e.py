@@ -206,7 +206,7 @@ class Patient:
     def __init__(self, b: BringUp) -> None:
         self.sim = b.node('can_driver_node').sim
         self.node = b.helper
-        self.pub = b.helper.create_publisher(PoseStamped, topics.SIM_BODY_REST, topics.BODY_REST_QOS)
+        self.pub = b.helper.create_publisher(PoseStamped, topics.SIM_BODY_REST, topics.STATE_QOS)
         self.goal_pub = b.helper.create_publisher(PoseStamped, topics.POSE_GOAL, topics.GOAL_QOS)
         self.rest = np.array(self.sim.rest_pose, dtype=float)
 

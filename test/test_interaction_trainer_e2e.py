@@ -118,7 +118,7 @@ def settled_gap(truth: Truth, still_s: float = 0.3, within_s: float = 1.0, timeo
 def test_zero_torque_follows_the_hand_along_the_straight_stroke(stack) -> None:
     b, truth = stack
     mech = b.node('can_driver_node').mechanism
-    rest_pub = b.helper.create_publisher(PoseStamped, topics.SIM_BODY_REST, topics.BODY_REST_QOS)
+    rest_pub = b.helper.create_publisher(PoseStamped, topics.SIM_BODY_REST, topics.STATE_QOS)
     wait(lambda: len(truth.pose) > 5 and len(truth.force) > 5, 10, 'the truth topics')
     ok, msg = b.call('/interaction_node/start', timeout=5)
     assert ok, msg

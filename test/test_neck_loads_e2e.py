@@ -84,7 +84,7 @@ def test_cables_slack_after_a_relief_are_taken_up_on_enable_and_goals_run_again(
                              '-p', 'safety.release_force:=5.0']
     with enabled_bring_up(DEVICE, extra) as (b, probe):
         node = b.helper
-        pub = node.create_publisher(PoseStamped, topics.SIM_BODY_REST, topics.BODY_REST_QOS)
+        pub = node.create_publisher(PoseStamped, topics.SIM_BODY_REST, topics.STATE_QOS)
         probe.wait(lambda: pub.get_subscription_count() > 0, 10, 'the simulator on body_rest')
         pub.publish(pose_msg(rest + (0.022, 0.0, 0.0), frame_id='brace_base', kind='planar',
                              stamp=node.get_clock().now().to_msg()))

@@ -93,7 +93,7 @@ class Operator:
         node.create_subscription(DiagnosticStatus, topics.EXECUTION_STATUS, self._on_execution,
                                  topics.STATUS_QOS)
         self.path_pub = node.create_publisher(PathMsg, topics.POSE_PATH, topics.GOAL_QOS)
-        self.rest_pub = node.create_publisher(PoseStamped, topics.SIM_BODY_REST, topics.BODY_REST_QOS)
+        self.rest_pub = node.create_publisher(PoseStamped, topics.SIM_BODY_REST, topics.STATE_QOS)
         self.setpoint_pub = node.create_publisher(JointState, topics.ACTUATOR_SETPOINT,
                                                   topics.SETPOINT_QOS)
 
