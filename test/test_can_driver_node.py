@@ -220,6 +220,53 @@ def test_a_dead_cycle_process_is_a_protective_stop_and_every_service_says_so(ros
     assert driver.lifecycle_state == 'finalized'
 
 
+def test_a_stuck_cycle_process_is_ended_and_every_service_says_so(ros, driver, monkeypatch):
+    """The control cycle's process alive but silent (SIGSTOP here; a deadlock or a native call
+    that never returns alike): after CYCLE_SILENT_S without a sample the driver ends it
+    (SIGKILL: a child that woke later would command drives the node reports stopped), its
+    state turns to a protective stop naming it, and a service called meanwhile answers why
+    instead of waiting for good."""
+    import signal
+    import threading
+
+    from diagnostic_msgs.msg import DiagnosticStatus
+
+    from brace_control.can import DriverError, process
+    from brace_control.nodes import topics
+    monkeypatch.setattr(process, 'CYCLE_SILENT_S', 1.0)
+    probe = ros.node('probe_stuck_cycle')
+    states = ros.collect(probe, DiagnosticStatus, topics.DRIVER_STATE, topics.LATCHED_QOS)
+    assert call(ros, probe, '/can_driver_node/home').success
+    child = driver.master._proc
+    os.kill(child.pid, signal.SIGSTOP)
+    try:
+        # a call that reaches the stuck child waits on it (in the node's thread), then answers
+        answer = []
+
+        def status():
+            try:
+                answer.append(driver.master.status())
+            except DriverError as exc:
+                answer.append(exc)
+        worker = threading.Thread(target=status, daemon=True)
+        worker.start()
+        ros.spin_until(lambda: any('sent nothing' in s.message and s.level == DiagnosticStatus.ERROR
+                                   for s in states), 5.0,
+                       lambda: f'a protective stop on {topics.DRIVER_STATE}; got {[s.message for s in states]}')
+        worker.join(timeout=2.0)
+        assert not worker.is_alive(), 'the call waiting on the stuck child did not end'
+        assert isinstance(answer[0], DriverError) and 'sent nothing' in str(answer[0]), answer
+        ros.spin_until(lambda: child.poll() is not None, 5.0, 'the stuck child ended')
+        assert child.returncode == -signal.SIGKILL
+        res = call(ros, probe, '/can_driver_node/enable', timeout=10.0)
+        assert not res.success and 'control cycle process' in res.message, res.message
+    finally:
+        if child.poll() is None:
+            os.kill(child.pid, signal.SIGCONT)
+    driver.shutdown()
+    assert driver.lifecycle_state == 'finalized'
+
+
 def test_a_control_cycle_closed_on_purpose_is_no_safety_error(ros, driver):
     """Between the driver closing its control cycle's process (its shutdown) and the node's own
     teardown, a diagnostics pass says the bus is closed (WARN), not that the process is gone
@@ -298,7 +345,7 @@ def test_a_trunk_stream_sent_while_the_executor_stood_still_moves_the_trunk_with
     from brace_control.nodes.msgs import pose_msg
     from brace_control.sim.brace import REST_STREAM_CATCH_UP
     probe = ros.node('patient')
-    pub = probe.create_publisher(PoseStamped, topics.SIM_BODY_REST, topics.BODY_REST_QOS)
+    pub = probe.create_publisher(PoseStamped, topics.SIM_BODY_REST, topics.STATE_QOS)
     bodies = ros.collect(probe, PoseStamped, topics.SIM_BODY_POSE,
                          QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE))
     ros.wait_matched(pub)

@@ -87,6 +87,12 @@ START_TIMEOUT_S = 60.0
 EXIT_TIMEOUT_S = 5.0
 #: s the parent waits, once the link closed, for the child's exit code (what ended it)
 LINK_CLOSED_EXIT_S = 1.0
+#: s without a periodic snapshot from a running child before the parent takes it for stuck
+#: (alive, silent: a deadlock, a native call that never returns, SIGSTOP): it ends the child
+#: (SIGKILL) and reports CYCLE_STOPPED, so that every call waiting on it answers. A loaded
+#: 2-core host stalled the child for up to 1.84 s in the suite's runs; a child that lives
+#: on unheard would keep commanding drives the node reports stopped
+CYCLE_SILENT_S = 5.0
 #: the simulator's truths the parent keeps, one per snapshot (5 s at 100 Hz): a ground-truth
 #: publisher starved for a while publishes the ones it missed, stamped as they were
 TRUTH_BACKLOG = 500
@@ -380,6 +386,7 @@ class MasterProcess:
             theirs.close()
         self._conn = Connection(ours.detach())
         self._fresh = threading.Event()
+        self._heard = time.monotonic()         # the last periodic snapshot's arrival
         self._reader = threading.Thread(target=self._read, name='brace_cycle_reader', daemon=True)
         self._reader.start()
         if on_snapshot is not None:
@@ -395,6 +402,9 @@ class MasterProcess:
         except BaseException:
             self.close()
             raise
+        if float(cfg['can']['joint_state_rate_hz']) > 0:
+            self._heard = time.monotonic()
+            threading.Thread(target=self._watch, name='brace_cycle_watchdog', daemon=True).start()
         self.sim = _SimView(self, 'sim') if self._info.get('sim') else None
         #: the master's supervisor and executor, read-only, as of the newest snapshot
         self.supervisor = _SupervisorView(self)
@@ -456,8 +466,38 @@ class MasterProcess:
                     if not self._truths or t.stamp > self._truths[-1].stamp:
                         self._truths.append(t)
         self._snapshot = snap
-        if periodic and self._on_snapshot is not None:
-            self._fresh.set()             # the callback runs in its own thread (it may call)
+        if periodic:
+            self._heard = time.monotonic()
+            if self._on_snapshot is not None:
+                self._fresh.set()         # the callback runs in its own thread (it may call)
+
+    def _watch(self, tick: float = 0.25) -> None:
+        """End a child that sends nothing for :data:`CYCLE_SILENT_S` (stuck, not gone: its
+        link stays open, so the reader waits for good and so would every call). Judged only
+        on ticks this thread itself took on time, with nothing waiting unread on the link: a
+        starved parent (its reader behind, or this thread late) is not a silent child."""
+        last = time.monotonic()
+        while self._ended is None and not self._closing:
+            time.sleep(tick)
+            now = time.monotonic()
+            on_time, last = now - last < 4 * tick, now
+            silent = now - self._heard
+            if not on_time or silent < CYCLE_SILENT_S or self._closing or self._ended is not None:
+                continue
+            try:
+                if self._conn.poll(0):            # the reader is behind, the child spoke
+                    continue
+            except (OSError, ValueError):
+                return                            # closed meanwhile: the reader reports it
+            why = (f'the control cycle process sent nothing for {silent:.1f} s (stuck; ended, '
+                   f'pid {self._proc.pid})')
+            log.error('%s', why)
+            self._end(why)
+            try:
+                self._proc.kill()
+            except OSError:
+                pass
+            return
 
     def _notify(self) -> None:
         """Call ``on_snapshot`` for the newest periodic snapshot (a slow callback skips to
