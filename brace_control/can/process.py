@@ -91,7 +91,8 @@ LINK_CLOSED_EXIT_S = 1.0
 #: (alive, silent: a deadlock, a native call that never returns, SIGSTOP): it ends the child
 #: (SIGKILL) and reports CYCLE_STOPPED, so that every call waiting on it answers. A loaded
 #: 2-core host stalled the child for up to 1.84 s in the suite's runs; a child that lives
-#: on unheard would keep commanding drives the node reports stopped
+#: on unheard would keep commanding drives the node reports stopped. While a start-up call
+#: (:data:`START_UP_CALLS`) runs, :data:`START_TIMEOUT_S` instead
 CYCLE_SILENT_S = 5.0
 #: the simulator's truths the parent keeps, one per snapshot (5 s at 100 Hz): a ground-truth
 #: publisher starved for a while publishes the ones it missed, stamped as they were
@@ -482,7 +483,12 @@ class MasterProcess:
             now = time.monotonic()
             on_time, last = now - last < 4 * tick, now
             silent = now - self._heard
-            if not on_time or silent < CYCLE_SILENT_S or self._closing or self._ended is not None:
+            with self._pending_lock:
+                starting = any(slot[3] in START_UP_CALLS for slot in self._pending.values())
+            # start-up work (a boot's, a recovery's) runs one real-time priority below the
+            # cycle's and may hold a core for seconds on a loaded host: the start's bound then
+            bound = START_TIMEOUT_S if starting else CYCLE_SILENT_S
+            if not on_time or silent < bound or self._closing or self._ended is not None:
                 continue
             try:
                 if self._conn.poll(0):            # the reader is behind, the child spoke
@@ -553,7 +559,7 @@ class MasterProcess:
         if self._ended is not None:
             raise DriverError(self._ended)
         ident = next(self._ids)
-        slot: list = [threading.Event(), False, None]
+        slot: list = [threading.Event(), False, None, name]
         with self._pending_lock:
             self._pending[ident] = slot
         payload = pickle.dumps((args, kwargs))      # what cannot cross raises here, in the caller
