@@ -342,7 +342,7 @@ def test_a_trunk_stream_sent_while_the_executor_stood_still_moves_the_trunk_with
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
     from brace_control.nodes import topics
-    from brace_control.nodes.msgs import pose_msg
+    from brace_control.nodes.msgs import ns_to_stamp, pose_msg, stamp_to_sec
     from brace_control.sim.brace import REST_STREAM_CATCH_UP
     probe = ros.node('patient')
     pub = probe.create_publisher(PoseStamped, topics.SIM_BODY_REST, topics.STATE_QOS)
@@ -350,17 +350,17 @@ def test_a_trunk_stream_sent_while_the_executor_stood_still_moves_the_trunk_with
                          QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE))
     ros.wait_matched(pub)
     ros.spin_until(lambda: len(bodies) >= 3, 3.0, '/brace/sim/body_pose')
-    rest = np.array([0.0, 0.390, 0.0872664626])      # sim.rest_pose of the lumbar YAML
+    rest = np.array(driver.cfg['sim']['rest_pose'], dtype=float)
     rise, n, period = 0.006, 60, 0.02
     t0 = probe.get_clock().now().nanoseconds
     for k in range(n):                                # the executor stands still meanwhile
         pose = rest + np.array([0.0, rise * k / (n - 1), 0.0])
-        pub.publish(pose_msg(pose, frame_id='brace_base', mechanism=None, stamp=rclpy_time(
-            t0 + int(k * period * 1e9))))
+        pub.publish(pose_msg(pose, frame_id='brace_base', mechanism=None,
+                             stamp=ns_to_stamp(t0 + round(k * period * 1e9))))
     end = rest[1] + rise
     ros.spin_until(lambda: abs(bodies[-1].pose.position.y - end) < 1e-7, 5.0,
                    lambda: f'the trunk at the stream\'s end ({end:.4f} m): at {bodies[-1].pose.position.y:.4f}')
-    seen = sorted({(b.header.stamp.sec + b.header.stamp.nanosec * 1e-9, b.pose.position.y) for b in bodies})
+    seen = sorted({(stamp_to_sec(b.header.stamp), b.pose.position.y) for b in bodies})
     t = np.array([s for s, _ in seen])
     y = np.array([v for _, v in seen])
     rate = np.abs(np.diff(y)) / np.diff(t)
@@ -368,8 +368,3 @@ def test_a_trunk_stream_sent_while_the_executor_stood_still_moves_the_trunk_with
     assert rate.max() <= 1.2 * bound, (f'the trunk moved at {rate.max() * 1e3:.1f} mm/s (the stream '
                                        f'{bound / REST_STREAM_CATCH_UP * 1e3:.2f} mm/s)')
     assert np.count_nonzero(np.diff(y) > 0) >= 10            # it went through the ramp
-
-
-def rclpy_time(ns: int):
-    from rclpy.time import Time
-    return Time(nanoseconds=ns).to_msg()
