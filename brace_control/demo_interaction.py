@@ -362,6 +362,12 @@ def run_session(node: Any, patient: _Patient, script: Script, services: dict[str
             if answer[1] != 'accepted':
                 raise RuntimeError(f'wrench goal {label} rejected: {answer[2]}')
             _pause(hold_s, stop)
+            # the driver checks the goal again at its own pose: its rejection comes after
+            # the node's acceptance, as a 'rejected' of the same goal
+            with patient.lock:
+                late = [ev for ev in patient.events[n:] if ev[0] == answer[0] and ev[1] == 'rejected']
+            if late:
+                raise RuntimeError(f'wrench goal {label} rejected after its acceptance: {late[-1][2]}')
         return body
 
     phase('wrench step', step(script.step, 'step'))

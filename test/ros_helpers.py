@@ -254,14 +254,20 @@ class Ros:
         return [n for n in names if n in futures and futures[n].done() and futures[n].exception() is None]
 
     def wait_node_answers(self, probe: Node, name: str, timeout: float,
-                          stop: Callable[[], bool] = lambda: False) -> None:
+                          stop: Callable[[], bool] = lambda: False,
+                          context: Callable[[], str] = lambda: '') -> None:
         """Ask :meth:`node_answers` again (1 s per try) until ``name`` answers or ``stop()``;
-        fail the test after ``timeout`` s."""
+        fail the test after ``timeout`` s, saying what the probe's graph held then (a node
+        not yet discovered, or discovered and silent) and ``context()`` (the process's log)."""
         deadline = time.monotonic() + timeout
         while not (stop() or self.node_answers(probe, name)):
             if time.monotonic() > deadline:
+                client = self._answer_clients.get((probe, name.lstrip('/')))
                 pytest.fail(f'timed out after {timeout} s waiting for {name} to answer '
-                            f'/{name}/list_parameters')
+                            f'/{name}/list_parameters; the probe sees the nodes '
+                            f'{sorted(probe.get_node_names())}, the service '
+                            f'{"matched" if client is not None and client.service_is_ready() else "not matched"}'
+                            f'\n{context()}')
 
     def close(self) -> None:
         self.executor.shutdown()

@@ -98,6 +98,14 @@ def test_in_process_bringup_carries_a_setpoint_and_shuts_down():
         rclpy.shutdown(context=ctx)
 
 
+def _ended_log(proc: subprocess.Popen) -> str:
+    """The end of what ``proc`` printed, killed first (its pipes are read only once it ends)."""
+    if proc.poll() is None:
+        proc.kill()
+    out, err = proc.communicate(timeout=30)
+    return f'brace-bringup (exit {proc.returncode}) printed:\n{out[-1500:]}{err[-3000:]}'
+
+
 @pytest.mark.ros
 @pytest.mark.slow
 @pytest.mark.parametrize('mode', [[], ['--processes']], ids=['one-process', 'processes'])
@@ -110,7 +118,9 @@ def test_cli_stops_cleanly_on_sigint_and_sigterm(ros, mode):
         try:
             probe = ros.node(f'probe_{sig.name.lower()}')
             for name in ('ik_node', 'kinetics_node'):
-                ros.wait_node_answers(probe, name, timeout=20, stop=lambda: proc.poll() is not None)
+                # 30 s: the node processes start beside the other workers' stacks
+                ros.wait_node_answers(probe, name, timeout=30, stop=lambda: proc.poll() is not None,
+                                      context=lambda: _ended_log(proc))
             assert proc.poll() is None, proc.communicate()[1][-2000:]
             # the probe hears them now (so its silence below is theirs, not the probe's)
             assert ros.nodes_answering(probe, MY_NODES, 20) == MY_NODES

@@ -154,7 +154,22 @@ def test_interaction_report_numbers_agree_with_the_recorded_truth(demo):
     final = resp[t_rel >= (tb - ta) - 0.5].mean()
     assert report['step']['final_mean'] == pytest.approx(final, abs=0.01)
     # what the truth shows about the controller: it holds the goal at the step's end
-    assert abs(final - g) < 0.05 * g
+    assert abs(final - g) < 0.05 * g, _step_not_held(data, ta, tb, t_rel, resp, proc)
+
+
+def _step_not_held(data: dict, ta: float, tb: float, t_rel: np.ndarray, resp: np.ndarray,
+                   proc: subprocess.CompletedProcess) -> str:
+    """What the bag and the demo's log say about a step the truth does not show (seen once,
+    in CI: the goal accepted, the true force near 0 to the window's end): every goal status
+    from 1 s before the window to its end (a rejection by the driver after the node's
+    acceptance, a limit), the true force each 0.1 s, and the end of the demo's log."""
+    t0 = data['t0']
+    events = [(round(t, 3), name, st) for t, name, st in data['status'] if ta - 1.0 <= t <= tb + 0.5]
+    each = [(round(float(t), 2), round(float(f), 2)) for t, f in zip(t_rel[::10], resp[::10])]
+    goals = [(round((st - t0) * 1e-9, 3), v) for st, v in data['goal']]
+    return (f'step window [{ta:.3f}, {tb:.3f}] s; the wrench goals (s, Fy) {goals}; the goal statuses '
+            f'(recorded s, name, state) {events}; the true Fy (s from the goal, N) {each}\n'
+            f'the demo printed:\n{proc.stdout[-2500:]}\n{proc.stderr[-2500:]}')
 
 
 def _no_step_samples(data: dict, ta: float, tb: float) -> str:
