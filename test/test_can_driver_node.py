@@ -267,6 +267,40 @@ def test_a_stuck_cycle_process_is_ended_and_every_service_says_so(ros, driver, m
     assert driver.lifecycle_state == 'finalized'
 
 
+def test_a_hole_in_the_ground_truth_is_said_in_the_log(ros, driver, capfd, caplog):
+    """The control cycle's process stopped for 1.5 s (SIGSTOP: a host that did not run it;
+    below CYCLE_SILENT_S, so it lives on): the simulated world stood still, and the ground
+    truth a recorder gets has a 1.5 s hole. Both sides say so in the log: the driver that the
+    truths it published are that far apart, the cycle process link whose side the time was
+    on. Oracle: the stamps of the truth received here, and the 1.5 s the test stopped it."""
+    import signal
+
+    from geometry_msgs.msg import PoseStamped
+
+    from brace_control.nodes import topics
+    probe = ros.node('probe_truth_hole')
+    got = ros.collect(probe, PoseStamped, topics.SIM_POSE, topics.truth_qos(100.0))
+    ros.spin_until(lambda: len(got) > 10, 10.0, 'the ground truth')
+    child = driver.master._proc
+    os.kill(child.pid, signal.SIGSTOP)
+    try:
+        time.sleep(1.5)
+    finally:
+        os.kill(child.pid, signal.SIGCONT)
+    n = len(got)
+    ros.spin_until(lambda: len(got) > n + 20, 10.0, 'the ground truth after the stop')
+    stamps = np.array([m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for m in got])
+    assert np.diff(stamps).max() > 1.4                   # the hole is in the truth itself
+    err = capfd.readouterr().err
+    said = [line for line in err.splitlines() if 'ground truth:' in line and 'between two truths' in line]
+    assert len(said) == 1, err[-3000:]
+    hole = float(said[0].split('ground truth: ')[1].split(' s')[0])
+    assert hole == pytest.approx(np.diff(stamps).max(), abs=0.02), said
+    why = [r.getMessage() for r in caplog.records if 'no snapshot from the control cycle' in r.getMessage()]
+    assert len(why) == 1 and 'the cycle process did not run meanwhile' in why[0], why
+    assert driver.master.faults == (), driver.master.faults
+
+
 def test_a_control_cycle_closed_on_purpose_is_no_safety_error(ros, driver):
     """Between the driver closing its control cycle's process (its shutdown) and the node's own
     teardown, a diagnostics pass says the bus is closed (WARN), not that the process is gone

@@ -423,7 +423,7 @@ def test_after_the_boot_every_thread_of_the_cycle_runs_at_its_real_time_priority
     assert set(threads.values()) == {(os.SCHED_FIFO, priority)}, threads
 
 
-def test_a_node_that_reads_nothing_for_seconds_still_gets_every_truth(enabled):
+def test_a_node_that_reads_nothing_for_seconds_still_gets_every_truth(enabled, caplog):
     """The node's process stops reading the link for 4 s (its reader held: a loaded host,
     runs 901 and 910): the child's pusher waits in its send once the link is full. Once the
     node reads again, the simulator's truths of those 4 s arrive all the same, at
@@ -443,4 +443,28 @@ def test_a_node_that_reads_nothing_for_seconds_still_gets_every_truth(enabled):
     assert stamps[0] <= t0 and stamps[-1] >= t1, (stamps[0] - t0, stamps[-1] - t1)
     gaps = np.diff(stamps)
     assert gaps.max() <= 1.5 * period, f'a hole of {gaps.max():.3f} s in the truth (period {period} s)'
+    assert mp.state is MasterState.ENABLED, mp.faults
+    # and the log says whose the 4 s were: the node's (the child's stamps went on meanwhile)
+    said = [r.getMessage() for r in caplog.records if 'no snapshot from the control cycle' in r.getMessage()]
+    assert said and all('this process fell behind in reading the link' in m for m in said), said
+
+
+def test_a_cycle_that_stood_still_is_named_in_the_log(enabled, caplog):
+    """The child stopped for 1.5 s (SIGSTOP: the host did not run it; below CYCLE_SILENT_S,
+    so it lives on): its first snapshot after says so, as a warning that names the child's side
+    (nothing else waiting on the link), the evidence a hole in a recorded truth needs."""
+    import signal
+    mp = enabled
+    wait_for(lambda: len(mp.sim.truths_since(0.0)) > 3, 5, 'truths from the child')
+    os.kill(mp.pid, signal.SIGSTOP)
+    try:
+        time.sleep(1.5)
+    finally:
+        os.kill(mp.pid, signal.SIGCONT)
+    wait_for(lambda: any('no snapshot from the control cycle' in r.getMessage() for r in caplog.records),
+             5, 'the warning')
+    said = [r.getMessage() for r in caplog.records if 'no snapshot from the control cycle' in r.getMessage()]
+    assert len(said) == 1 and 'the cycle process did not run meanwhile' in said[0], said
+    gap = float(said[0].split(' for ')[1].split(' s')[0])
+    assert 1.4 < gap < 3.0, said
     assert mp.state is MasterState.ENABLED, mp.faults

@@ -94,6 +94,10 @@ LINK_CLOSED_EXIT_S = 1.0
 #: on unheard would keep commanding drives the node reports stopped. While a start-up call
 #: (:data:`START_UP_CALLS`) runs, :data:`START_TIMEOUT_S` instead
 CYCLE_SILENT_S = 5.0
+#: s between two periodic snapshots (at ``can.joint_state_rate_hz``) past which the parent
+#: logs a warning saying on whose side the time went (:meth:`MasterProcess._warn_gap`):
+#: the evidence for a hole in the recorded truth, which only the logs of a run can show
+SNAPSHOT_GAP_WARN_S = 1.0
 #: the simulator's truths the parent keeps, one per snapshot (5 s at 100 Hz): a ground-truth
 #: publisher starved for a while publishes the ones it missed, stamped as they were
 TRUTH_BACKLOG = 500
@@ -388,6 +392,7 @@ class MasterProcess:
         self._conn = Connection(ours.detach())
         self._fresh = threading.Event()
         self._heard = time.monotonic()         # the last periodic snapshot's arrival
+        self._taken = 0.0                       # and when the child took it (time.monotonic)
         self._reader = threading.Thread(target=self._read, name='brace_cycle_reader', daemon=True)
         self._reader.start()
         if on_snapshot is not None:
@@ -419,7 +424,7 @@ class MasterProcess:
                 msg = link_loads(self._conn.recv_bytes())
                 kind = msg[0]
                 if kind == 'snap':
-                    self._apply(msg[1], periodic=True)
+                    self._apply(msg[1], periodic=True, taken=msg[2])
                 elif kind == 'reply':
                     _, ident, ok, value, snap = msg
                     self._apply(snap)
@@ -454,7 +459,7 @@ class MasterProcess:
             self._end(f'the control cycle process link broke: {exc!r}')
             log.exception('reading the control cycle process')
 
-    def _apply(self, snap: Snapshot | None, *, periodic: bool = False) -> None:
+    def _apply(self, snap: Snapshot | None, *, periodic: bool = False, taken: float = 0.0) -> None:
         if snap is None:
             return
         if snap.events:
@@ -468,9 +473,26 @@ class MasterProcess:
                         self._truths.append(t)
         self._snapshot = snap
         if periodic:
-            self._heard = time.monotonic()
+            now = time.monotonic()
+            if now - self._heard > SNAPSHOT_GAP_WARN_S:
+                self._warn_gap(now - self._heard, taken - self._taken)
+            self._heard, self._taken = now, taken
             if self._on_snapshot is not None:
                 self._fresh.set()         # the callback runs in its own thread (it may call)
+
+    def _warn_gap(self, gap: float, taken_apart: float) -> None:
+        """Say that the periodic snapshots stopped for ``gap`` s, and on whose side: the child
+        takes one every 1/``can.joint_state_rate_hz`` while it runs, so the first after the gap
+        taken as long after the one before is a child that did not run (a stalled host,
+        SIGSTOP: its simulated world stood still meanwhile, a hole in the truth itself);
+        taken on time is a parent that fell behind in reading the link (the simulator's
+        truths of that time come along)."""
+        log.warning('no snapshot from the control cycle process for %.2f s: %s', gap,
+                    f'it took this one {taken_apart:.2f} s after the one before: the cycle process '
+                    'did not run meanwhile (its simulated world stood still)'
+                    if taken_apart > 0.5 * gap else
+                    f'it took this one {taken_apart * 1e3:.0f} ms after the one before: this '
+                    'process fell behind in reading the link')
 
     def _watch(self, tick: float = 0.25) -> None:
         """End a child that sends nothing for :data:`CYCLE_SILENT_S` (stuck, not gone: its
@@ -881,7 +903,8 @@ class _Child:
                 next_t = time.monotonic()
             elif delay > 0 and self.stop.wait(delay):
                 break
-            self.send_with_snapshot(lambda snap: ('snap', snap))
+            # with when it was taken (CLOCK_MONOTONIC: one clock for every process)
+            self.send_with_snapshot(lambda snap: ('snap', snap, time.monotonic()))
 
     def resolve(self, target: str, path: str) -> tuple[Any, str]:
         """The object holding the last attribute of ``path`` (dotted) on ``target``, and

@@ -101,7 +101,10 @@ subscribes to it), with ``topics.truth_qos`` (``topics.TRUTH_KEPT_S`` of it kept
 reader that has not acknowledged it yet; a tick that came late publishes the truths it
 missed, each with its own SYNC's stamp), each topic while something subscribes it (they
 are volatile: a reader gets the next sample either way, and nobody pays for truth nobody
-reads):
+reads). Two truths published in turn more than ``TRUTH_HOLE_WARN_S`` apart are a warning in
+the log, and the cycle's process link says whose side the time was on (a cycle that stood
+still, or a node behind): a hole in a recorded truth is explained in the run's log. The
+topics:
 
 * ``/brace/sim/joint_states`` (``JointState``): the true actuator positions, rates and
   efforts (force N / torque N·m, before load-cell noise and quantisation);
@@ -172,6 +175,10 @@ TAKE_UP_GAP_M = 0.0005
 TAKE_UP_TENSION_N = 1.0
 #: Hz: execution events and the driver state are published this often (when they change)
 EVENT_RATE_HZ = 50.0
+#: s between two ground truths published in turn past which the node warns: the simulated
+#: world runs a SYNC every few ms, so a hole that long is a cycle that stood still or truths
+#: this node could not keep (``can.process.TRUTH_BACKLOG``)
+TRUTH_HOLE_WARN_S = 1.0
 
 #: lifecycle states in which a Trigger service is taken
 ACTIVE = frozenset({'active'})
@@ -529,11 +536,20 @@ class CanDriverNode(LifecycleNode):
                 self._truth_published = newest.stamp if newest is not None else 0.0
                 return [newest] if newest is not None else []
             out: list[Any] = []
-            for truth in sim.truths_since(last):
+            kept = sim.truths_since(last)
+            for truth in kept:
                 if truth.stamp >= last + spacing:
                     out.append(truth)
                     last = truth.stamp
             if out:
+                hole = out[0].stamp - self._truth_published
+                if hole > TRUTH_HOLE_WARN_S:
+                    # the evidence a hole in a recorded truth needs: the world stood still
+                    # (the cycle process's own warning says so), or this node published
+                    # nothing for longer than the truths it keeps
+                    self.get_logger().warning(
+                        f'ground truth: {hole:.2f} s between two truths published in turn; the '
+                        f'truths kept reach back {time.time() - kept[0].stamp:.2f} s')
                 self._truth_published = last
                 return out
             # none new for two ticks: the world stands still (no SYNC), its truth goes on
