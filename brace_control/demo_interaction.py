@@ -6,7 +6,8 @@ The lumbar paper's zero-torque mode (seed 001, "Wearing effect") and a wrench go
 against the simulator's truth (issue 14, docs/interaction.md):
 
 1. bring-up as the position demo (:func:`brace_control.demo.run_demo`: every node, the
-   simulated brace on the virtual bus; its truth at 100 Hz), home, enable, record every
+   simulated brace on the virtual bus; its truth at 100 Hz unless ``-p sim.truth_rate_hz``
+   says otherwise), home, enable, record every
    topic of :data:`INTERACTION_TOPICS` to ``OUT/run.mcap``;
 2. ``/interaction_node/start``: zero-torque mode;
 3. the simulated patient (the demo publishes the trunk's rest pose on
@@ -432,7 +433,9 @@ def run_interaction_demo(device: str, out: Path, *, processes: bool = True,
     print(f'session: sway {np.round(script.amplitude, 4).tolist()} (phase {np.round(script.phase, 2).tolist()} rad) '
           f'at {script.frequency_hz:g} Hz '
           f'around {np.round(script.centre, 4).tolist()}, wrench step {script.step.tolist()}')
-    extra = [*extra_args, '-p', 'sim.truth_rate_hz:=100.0']
+    # the truth at 100 Hz unless the caller's --ros-args say otherwise (they come after: the
+    # last value of a parameter is the one a node takes)
+    extra = ['-p', 'sim.truth_rate_hz:=100.0', *extra_args]
 
     stop = threading.Event()
     use_discovery_profile()

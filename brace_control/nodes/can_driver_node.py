@@ -542,7 +542,8 @@ class CanDriverNode(LifecycleNode):
                     out.append(truth)
                     last = truth.stamp
             if out:
-                hole = out[0].stamp - self._truth_published
+                stamps = [self._truth_published] + [t.stamp for t in out]
+                hole = max(b - a for a, b in zip(stamps, stamps[1:]))
                 if hole > TRUTH_HOLE_WARN_S:
                     # the evidence a hole in a recorded truth needs: the world stood still
                     # (the cycle process's own warning says so), or this node published
@@ -566,6 +567,8 @@ class CanDriverNode(LifecycleNode):
             if any(wanted):
                 for truth in truths(sim):
                     publish_one(truth, wanted)
+            else:
+                self._truth_published = 0.0   # a reader that comes gets the newest: no hole
 
         def publish_one(truth: Any, wanted: list[bool]) -> None:
             js_pub, pose_pub, wrench_pub, body_pub = self._truth_pubs
