@@ -36,6 +36,8 @@ _channels = itertools.count()
 #: the truth readers' depth: a reader the host starved for seconds still takes every sample
 #: the simulator kept for it (``topics.truth_qos``: 5 s), not the newest 10
 TRUTH_DEPTH = bag.RECORD_DEPTH
+#: Hz of the simulator's truth in this file's stack (the stack fixture says why not 100)
+TRUTH_HZ = 50.0
 #: m/s: the speed the admittance may command (trajectory.limit_margin x actuator.max_velocity)
 V_ALLOWED = PARAMS['trajectory']['limit_margin'] * PARAMS['actuator']['max_velocity']
 #: share of V_ALLOWED a sway may need: the ring lags the trunk and catches up a little faster
@@ -234,8 +236,12 @@ class Truth:
 
 @pytest.fixture(scope='module')
 def stack(tmp_path_factory):
+    # the truth at TRUTH_HZ: this process runs the whole stack and reads three truth topics;
+    # at 100 Hz, beside two other workers, the driver's truth publisher fell seconds behind
+    # (runs 1110, 1201: the newest sample 12-15 s old, past its 5 s backlog: holes; runs 910,
+    # 1016: half the sway's samples unpaired)
     extra = ['-p', f'can.channel:=inter{next(_channels)}', '-p', 'can.sync_spin_us:=0',
-             '-p', 'sim.truth_rate_hz:=100.0', *BUSY_HOST_ARGS]
+             '-p', f'sim.truth_rate_hz:={TRUTH_HZ}', *BUSY_HOST_ARGS]
     with stack_in_process(LUMBAR, tmp_path_factory.mktemp('device'), extra) as b:
         truth = Truth(b.helper, b.node('can_driver_node'))
         home_and_enable(b)
@@ -323,7 +329,8 @@ def test_zero_torque_mode_follows_a_swaying_patient_and_holds_wrench_goals(stack
         truth.wait_sampled_until(t_end, 10)
         w = truth.sampled(t_skip, t_end)
         pose, body = truth.ring_and_trunk(t_skip, t_end)
-        assert len(pose) > 50 * periods / f_hz, f'{tag}: {len(pose)} pose samples paired with the trunk'
+        # at least half the truth's samples of the sway paired (the same stamp) with the trunk's
+        assert len(pose) > TRUTH_HZ / 2 * periods / f_hz, f'{tag}: {len(pose)} pose samples paired with the trunk'
         err = np.abs(pose - body)
         report[f'{tag} max |Fy| N'] = float(np.max(np.abs(w[:, 1])))
         report[f'{tag} max |Mz| N.m'] = float(np.max(np.abs(w[:, 2])))
