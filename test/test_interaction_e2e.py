@@ -364,8 +364,12 @@ def test_zero_torque_mode_follows_a_swaying_patient_and_holds_wrench_goals(stack
         truth.wait_status(lambda s: '/wrench_goal/' in s.name and s.message == 'accepted'
                           and float(status_values(s)['goal'].split(',')[axis]) == value,
                           2, f'{name} accepted')
-        time.sleep(2.0)
-        truth.wait_sampled_until(time.time(), 10)       # the record of those 2 s is whole
+        # 2 s of the step from the goal's arrival in the cycle, two DDS hops after the
+        # acceptance (the final clone of the twelfth session: more than 2 s later, and a fixed
+        # 2 s from the acceptance left no sample after it), its record whole
+        wait(lambda: (take_trace(), len(goal_arrivals) > n_arrived)[1], 10, f'{name} in the cycle',
+             truth.evidence)
+        truth.wait_sampled_until(goal_arrivals[n_arrived] + 2.0, 15)
         take_trace()
         # the goal reached the cycle once; or twice within 0.1 s, the same goal delivered
         # again (run 915: 8 ms apart, one publish): settling counts from the first
