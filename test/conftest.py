@@ -128,7 +128,7 @@ def _clean_zombie_shm() -> str:
     return ' '.join(out.getvalue().split()) + (f'; half-made ports removed: {half_made}' if half_made else '')
 
 
-def _remove_half_made_ports() -> list[str]:
+def _remove_half_made_ports(shm: str = '/dev/shm') -> list[str]:
     """Remove the shared-memory ports whose creator died while making them: a port file
     with no lock file (``_el``) beside it, 10 s old. Fast DDS's clean tool does not look at
     them (it goes by the lock files), and every new participant that opens the port waits
@@ -136,11 +136,17 @@ def _remove_half_made_ports() -> list[str]:
     (fastdds_port7001, 0 bytes, left by a run the watchdog ended) and full size
     (fastdds_port7003, 52 400 bytes: both workers of a run, then their replacements, spun
     in boost's ``priv_open_or_create``). A port being made has its lock file within
-    microseconds, not 10 s."""
+    microseconds, not 10 s.
+
+    Also a port's creation mutex (``sem.fastdds_port<N>_mutex``, a named semaphore) whose
+    port is gone, 10 s old: a process killed while it held one leaves it taken, and the next
+    participant to make port N waits on it for good (the clean tool leaves them: 721 of them
+    here after a day of runs; the twelfth session's final clone, twice, had three node
+    starts in one worker hang 30 s). A live port has its file, so its mutex stays."""
     import glob
     import time
     removed = []
-    for path in glob.glob('/dev/shm/fastdds_port*'):
+    for path in glob.glob(os.path.join(shm, 'fastdds_port*')):
         if path.endswith(('_el', '_sl')) or os.path.exists(path + '_el'):
             continue
         try:
@@ -149,6 +155,16 @@ def _remove_half_made_ports() -> list[str]:
                 removed.append(os.path.basename(path))
         except OSError:
             continue                  # made or removed meanwhile
+    for path in glob.glob(os.path.join(shm, 'sem.fastdds_port*_mutex')):
+        port = os.path.join(shm, os.path.basename(path)[len('sem.'):-len('_mutex')])
+        if os.path.exists(port):
+            continue
+        try:
+            if time.time() - os.stat(path).st_mtime > 10.0:
+                os.remove(path)
+                removed.append(os.path.basename(path))
+        except OSError:
+            continue
     return removed
 
 

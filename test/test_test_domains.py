@@ -48,3 +48,24 @@ def test_a_free_domain_asked_for_is_the_one_given():
     asked = (ours + 3 * conftest.DOMAIN_BLOCK) % (233 - conftest.DOMAIN_BLOCK)
     theirs = _other_run_base(str(asked))
     assert theirs >= asked            # the first free block from the one asked for
+
+
+def test_stale_fast_dds_ports_and_port_mutexes_are_removed_live_ones_kept(tmp_path):
+    """conftest's cleanup of /dev/shm (here a directory of its own): a half-made port (no
+    lock file) and the creation mutex of a port that is gone, both 10 s old, are removed;
+    a live port, its lock file and its mutex, and anything younger than 10 s, are kept."""
+    import time
+
+    from conftest import _remove_half_made_ports
+    old = time.time() - 60
+    names = ['fastdds_port7001',                                    # half-made, old: removed
+             'fastdds_port7002', 'fastdds_port7002_el', 'sem.fastdds_port7002_mutex',  # live
+             'sem.fastdds_port7003_mutex',                          # its port gone, old: removed
+             'fastdds_port7004', 'sem.fastdds_port7005_mutex']      # young: kept
+    for name in names:
+        (tmp_path / name).write_bytes(b'')
+        if not name.endswith(('7004', '7005_mutex')):
+            os.utime(tmp_path / name, (old, old))
+    removed = _remove_half_made_ports(str(tmp_path))
+    assert sorted(removed) == ['fastdds_port7001', 'sem.fastdds_port7003_mutex']
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(set(names) - set(removed))
