@@ -264,3 +264,18 @@ def test_long_work_is_allowed_only_where_a_watch_runs_and_never_less_than_its_li
     runner.StallWatch.active = None                      # run_node's shutdown
     runner.allow_long_work()
     assert len(armed) == 6
+
+
+def test_a_stop_whose_systemexit_an_import_swallowed_still_ends_the_node_at_once():
+    """A stop signal during the imports raises SystemExit (nodes/__init__); should an import
+    swallow it (a broad except, a finaliser), the signal would be lost and the node would run
+    on (the twelfth session's final clones: kinetics_node idle in its spin loop, 30 s after
+    the test's SIGINT). The handler also records it, and ``run_node`` ends at once, exit 0,
+    before rclpy starts: here the record set by hand, as a swallowed SystemExit leaves it."""
+    code = ('import sys, brace_control.nodes as n; n.STOPPED_WHILE_STARTING = True; '
+            'from brace_control.nodes.kinetics_node import main; '
+            f'sys.exit(main(["kinetics_node", "--ros-args", "--params-file", {str(LUMBAR_YAML)!r}]))')
+    out = subprocess.run([sys.executable, '-c', code], cwd=REPO, env=dict(os.environ),
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert 'kinetics_node' not in out.stderr and 'Traceback' not in out.stderr, out.stderr[-2000:]

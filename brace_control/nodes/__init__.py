@@ -36,6 +36,11 @@ def _started_as_a_node() -> bool:
     return False
 
 
+#: a stop signal came while the node's process still imported (:func:`_stop_while_starting`):
+#: ``runner.run_node`` stops at once when it is set, should the ``SystemExit`` have been lost
+STOPPED_WHILE_STARTING = False
+
+
 def _stop_while_starting() -> None:
     """A node process stopped by a signal while it still imports (rclpy and the message types
     take about a second) ends cleanly, exit code 0, as it does once it runs (``runner``):
@@ -45,7 +50,9 @@ def _stop_while_starting() -> None:
     import signal
 
     def leave(signum, frame):
-        raise SystemExit(0)
+        global STOPPED_WHILE_STARTING
+        STOPPED_WHILE_STARTING = True   # kept: an import that swallows the SystemExit below
+        raise SystemExit(0)             # (a broad except, a finaliser) must not lose the stop
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT):
         if signal.getsignal(sig) in (signal.SIG_DFL, signal.default_int_handler):
             signal.signal(sig, leave)

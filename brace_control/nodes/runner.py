@@ -264,6 +264,12 @@ def run_node(factory: Callable[[], Node], *, executable: str, summary: str,
     stop = threading.Event()
     for sig in STOP_SIGNALS:
         signal.signal(sig, lambda *_: stop.set())
+    from .. import nodes as _package
+    if getattr(_package, 'STOPPED_WHILE_STARTING', False):
+        # a stop signal during the imports whose SystemExit something swallowed (the final
+        # clone of the twelfth session: the node then ran on, its SIGINT lost): nothing
+        # started yet, the clean end of a stop while starting
+        return 0
     watch_parent(stop)
     from .params import params_files
     try:
