@@ -145,26 +145,21 @@ def _remove_half_made_ports(shm: str = '/dev/shm') -> list[str]:
     starts in one worker hang 30 s). A live port has its file, so its mutex stays."""
     import glob
     import time
-    removed = []
-    for path in glob.glob(os.path.join(shm, 'fastdds_port*')):
-        if path.endswith(('_el', '_sl')) or os.path.exists(path + '_el'):
-            continue
-        try:
-            if time.time() - os.stat(path).st_mtime > 10.0:
-                os.remove(path)
-                removed.append(os.path.basename(path))
-        except OSError:
-            continue                  # made or removed meanwhile
-    for path in glob.glob(os.path.join(shm, 'sem.fastdds_port*_mutex')):
-        port = os.path.join(shm, os.path.basename(path)[len('sem.'):-len('_mutex')])
-        if os.path.exists(port):
-            continue
-        try:
-            if time.time() - os.stat(path).st_mtime > 10.0:
-                os.remove(path)
-                removed.append(os.path.basename(path))
-        except OSError:
-            continue
+    removed: list[str] = []
+
+    def remove_old(paths: list[str]) -> None:
+        for path in paths:
+            try:
+                if time.time() - os.stat(path).st_mtime > 10.0:
+                    os.remove(path)
+                    removed.append(os.path.basename(path))
+            except OSError:
+                continue              # made or removed meanwhile
+    remove_old([path for path in glob.glob(os.path.join(shm, 'fastdds_port*'))
+                if not path.endswith(('_el', '_sl')) and not os.path.exists(path + '_el')])
+    # after the ports: the mutex of a half-made port just removed goes too
+    remove_old([path for path in glob.glob(os.path.join(shm, 'sem.fastdds_port*_mutex'))
+                if not os.path.exists(os.path.join(shm, os.path.basename(path)[len('sem.'):-len('_mutex')]))])
     return removed
 
 
