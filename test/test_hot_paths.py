@@ -110,6 +110,27 @@ def test_brace_at_rest_reports_the_held_equilibrium_each_sync() -> None:
             assert not np.shares_memory(getattr(a, field), getattr(b, field)), field
 
 
+def test_truth_at_is_the_truth_of_the_nearest_stamp() -> None:
+    """``truth_at`` (a walk back from the newest truth) picks the truth that a search of the
+    whole history for the least ``|stamp - asked|`` picks (the oldest of equals): stamps a
+    period apart, repeated stamps (SYNCs no later than the one before), asked for before,
+    inside, between and after the history."""
+    sim, _ = enabled_brace()
+    rng = np.random.default_rng(7)
+    for _ in range(300):
+        sim._on_sync(0.002)
+        sim.host.last_sync_stamp = round(sim.host.last_sync_stamp + rng.choice([0.0, 0.002, 0.005]), 3) \
+            if sim.host.last_sync_stamp else 1000.0
+    history = list(sim._history)
+    stamps = np.array([t.stamp for t in history])
+    assert np.all(np.diff(stamps) >= 0) and np.any(np.diff(stamps) == 0) and len(history) > 30
+    asked = np.concatenate([stamps, stamps + 0.001, stamps - 0.0015, stamps + 0.0025,
+                            [stamps[0] - 1.0, stamps[-1] + 1.0], rng.uniform(stamps[0], stamps[-1], 200)])
+    for s in asked:
+        expected = min(history, key=lambda t: abs(t.stamp - s))        # the first of equals
+        assert sim.truth_at(float(s)) is expected, s
+
+
 # ---------------------------------------------------------------------- CiA 402 codes
 
 #: CiA 402-2 table 30, written out: (mask, value) -> state

@@ -418,7 +418,17 @@ class SimulatedBrace:
         among the last :data:`TRUTH_HISTORY`: the truth of the same SYNC as a measurement."""
         with self.lock:
             history = tuple(self._history) or (self._truth,)
-        return min(history, key=lambda t: abs(t.stamp - stamp))
+        # the stamps rise with the SYNCs, so the distance falls then rises: walk back from
+        # the newest (the one asked for, mostly) while it does not rise; among equal
+        # distances the older, as min() over the history would take
+        best = history[-1]
+        gap = abs(best.stamp - stamp)
+        for truth in reversed(history[:-1]):
+            d = abs(truth.stamp - stamp)
+            if d > gap:
+                break
+            best, gap = truth, d
+        return best
 
     def recorded_since(self, stamp: float) -> list[BraceTruth]:
         """The truths kept at ``sim.truth_rate_hz`` stamped after ``stamp`` (wall clock,
