@@ -9,10 +9,13 @@ form to rounding.
 """
 from __future__ import annotations
 
+import threading
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
-from brace_control.control.execution import ActuatorTrajectory, PathExecutor
+from brace_control.control.execution import ActuatorTrajectory, ExecutionState, PathExecutor
 from brace_control.trajectory.base import quintic_coefficients
 
 T_SYNC = 0.002
@@ -230,3 +233,34 @@ def test_a_brake_early_in_a_motion_is_short_and_always_within_the_acceleration_l
     assert qs[-1] < A and abs(vs[-1]) < 1e-9
     if stop_at <= 0.05:
         assert qs[-1] - q_stop < 0.06, qs[-1] - q_stop
+
+
+def test_the_master_s_moving_is_not_read_halfway_through_a_start():
+    """``BraceMaster.moving`` never says "at rest" while a trajectory starts. The SYNC
+    thread's step takes a starting trajectory off the schedule before the executor's state
+    says TRAJECTORY; another thread that read in between saw neither, took the motion for
+    ended and read its events without an end (test_durand_peer, a run of 2026-11-29:
+    ``[('accepted', ''), ('started', '')]``). The read waits for the step (the motion's lock,
+    which every step holds)."""
+    from brace_control.can.lifecycle import Motion
+    from brace_control.can.master import BraceMaster
+
+    ex = executor()
+    motion = Motion(ex)
+    master = SimpleNamespace(motion=motion, executor=ex)
+    moving = BraceMaster.moving.fget
+    assert ex.load(Quintic(Q0, np.zeros(3), np.zeros(3), Q0 + 0.01, 1.0).knots(), 0.5, 7, now=0.0) is None
+    assert moving(master)                                   # scheduled: motion to come
+    answers: list[bool] = []
+    with motion.lock:                                       # the SYNC thread's step ...
+        starting = ex._pending.pop(0)                       # ... halfway through the start
+        assert not ex.moving                                # premise: the executor says rest
+        reader = threading.Thread(target=lambda: answers.append(moving(master)))
+        reader.start()
+        reader.join(0.2)
+        assert answers == [], 'moving was answered in the middle of a step'
+        ex._pending.insert(0, starting)
+        ex.step(0.5)                                        # the step as it runs: the start
+        assert ex.state is ExecutionState.TRAJECTORY
+    reader.join(5.0)
+    assert answers == [True]

@@ -23,7 +23,7 @@ from geometry_msgs.msg import PoseStamped
 
 from brace_control.config import load_device_config
 from brace_control.nodes import topics
-from brace_control.nodes.msgs import pose_msg
+from brace_control.nodes.msgs import pose_msg, stamp_to_ns
 from rpr_oracles import cable_lengths_4rpr
 from test_e2e import _extra_args, _planar, enabled_bring_up
 
@@ -37,6 +37,20 @@ def _head_load(cfg, poses) -> np.ndarray:
     K = np.asarray(cfg['sim']['stiffness'], float).reshape(3, 3)
     rest = np.asarray(cfg['sim']['rest_pose'], float)
     return np.abs((np.asarray(poses) - rest) @ K.T)
+
+
+def _same_sync(probe, since: int):
+    """The newest true head pose (of ``probe.sim_poses[since:]``) and the joint state of the
+    same SYNC (the same stamp: the simulator's truth and the measurements of one SYNC carry
+    its send time), or None. After the take-up the head still settles: samples of two SYNCs
+    would differ by its motion in between (run of 2026-11-29: 40 um)."""
+    with probe.lock:
+        joints = {stamp_to_ns(m.header.stamp): m for m in probe.joints[-200:]}
+        for pose in reversed(probe.sim_poses[since:][-200:]):
+            js = joints.get(stamp_to_ns(pose.header.stamp))
+            if js is not None:
+                return pose, js
+    return None
 
 
 def _end_of(probe, k: int, what: str) -> dict:
@@ -100,13 +114,15 @@ def test_cables_slack_after_a_relief_are_taken_up_on_enable_and_goals_run_again(
         assert slack.max() > 0.005, f'premise: cables hang slack after the relief: {slack} m'
         ok, msg = b.call('/can_driver_node/enable', timeout=60)
         assert ok, msg
+        since = len(probe.sim_poses)
         probe.wait(lambda: probe.driver and probe.driver[-1].message == 'enabled', 5, 'enabled state')
         probe.wait_fresh(probe.joints, 5, 5, 'joint states after the take-up')
         probe.wait_fresh(probe.sim_poses, 5, 5, 'true poses')
-        with probe.lock:
-            here = _planar(probe.sim_poses[-1])
-            lengths = np.asarray(probe.joints[-1].position, float)
-            tension = -np.asarray(probe.joints[-1].effort, float)
+        probe.wait(lambda: _same_sync(probe, since) is not None, 5, 'a true pose and a joint state of one SYNC')
+        pose, js = _same_sync(probe, since)
+        here = _planar(pose)
+        lengths = np.asarray(js.position, float)
+        tension = -np.asarray(js.effort, float)
         # taut again: each cable's length is its length at the TRUE head pose, short by its
         # stretch under its tension (sim.leg_stiffness), within two encoder counts
         stretch = np.maximum(tension, 0.0) / float(cfg['sim']['leg_stiffness'])

@@ -376,8 +376,12 @@ class BraceMaster:
 
     @property
     def moving(self) -> bool:
-        """The command is in motion (or a trajectory is scheduled)."""
-        return self.executor.moving
+        """The command is in motion (or a trajectory is scheduled). Read between two steps
+        of the SYNC thread (under the motion's lock): the step that starts a trajectory takes
+        it off the schedule before the executor is in motion, and a read in between saw
+        neither (a client that waited for the motion's end read the events before its end)."""
+        with self.motion.lock:
+            return self.executor.moving
 
     # -- what a node reads (the same names on :class:`~.process.MasterProcess`)
 
