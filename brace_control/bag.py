@@ -80,8 +80,8 @@ RECORD_DRAIN_MAX_S = 10.0
 DEFAULT_DEPTH = 100
 #: History depth of the recorder's subscriptions (reliable): a recorder process starved for a
 #: few seconds (a busy machine) still takes every message of a 100 Hz topic its publisher
-#: kept (the ground truth keeps 5 s, ``topics.truth_qos``) instead of the newest 100.
-RECORD_DEPTH = 1000
+#: kept (the ground truth keeps 20 s, ``topics.truth_qos``) instead of the newest 100.
+RECORD_DEPTH = 2000
 #: Seconds the replay waits for reliable readers to acknowledge (a pacing step, the end).
 DEFAULT_ACK_TIMEOUT_S = 5.0
 #: rosbag2 metadata versions this reader knows (rosbag2's own reader stops at 9 too).

@@ -34,7 +34,7 @@ LUMBAR = ROOT / 'config' / 'lumbar_brace.yaml'
 PARAMS = yaml.safe_load(LUMBAR.read_text())['/**']['ros__parameters']
 _channels = itertools.count()
 #: the truth readers' depth: a reader the host starved for seconds still takes every sample
-#: the simulator kept for it (``topics.truth_qos``: 5 s), not the newest 10
+#: the simulator kept for it (``topics.truth_qos``: 20 s), not the newest 10
 TRUTH_DEPTH = bag.RECORD_DEPTH
 #: Hz of the simulator's truth in this file's stack (the stack fixture says why not 100)
 TRUTH_HZ = 50.0

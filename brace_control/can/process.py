@@ -98,9 +98,11 @@ CYCLE_SILENT_S = 5.0
 #: logs a warning saying on whose side the time went (:meth:`MasterProcess._warn_gap`):
 #: the evidence for a hole in the recorded truth, which only the logs of a run can show
 SNAPSHOT_GAP_WARN_S = 1.0
-#: the simulator's truths the parent keeps, one per snapshot (5 s at 100 Hz): a ground-truth
-#: publisher starved for a while publishes the ones it missed, stamped as they were
-TRUTH_BACKLOG = 500
+#: the simulator's truths the parent keeps, one per snapshot (20 s at 100 Hz): a ground-truth
+#: publisher starved for a while publishes the ones it missed, stamped as they were. 5 s
+#: (500) was too few: an in-process stack beside two other test workers (load 10 on 2
+#: cores) stood 4-11 s behind, and the demo's recorded truth had holes of 1.9-5.1 s
+TRUTH_BACKLOG = 2000
 
 
 def _array_from(dtype: str, shape: tuple[int, ...], data: bytes) -> np.ndarray:
@@ -284,12 +286,14 @@ class _SimView(_Remote):
         s), oldest first, among the last :data:`TRUTH_BACKLOG`: none is lost to a reader that
         falls behind the snapshots for a while."""
         owner = self._owner
-        with owner._truths_lock:
-            kept = tuple(owner._truths)
-        k = len(kept)
-        while k and kept[k - 1].stamp > stamp:
-            k -= 1
-        return list(kept[k:])
+        out: list[Any] = []
+        with owner._truths_lock:          # from the newest back: no copy of the whole backlog
+            for truth in reversed(owner._truths):
+                if truth.stamp <= stamp:
+                    break
+                out.append(truth)
+        out.reverse()
+        return out
 
     def set_rest_pose(self, pose: np.ndarray, stamp: float | None = None) -> None:
         """A stream (the patient's trunk, 50-100 Hz): sent, not waited for."""

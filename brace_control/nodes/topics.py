@@ -111,8 +111,9 @@ TRUTH_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                        reliability=ReliabilityPolicy.RELIABLE)
 #: s of ground truth a publisher keeps for a reader that did not acknowledge it yet (a
 #: recorder starved for a second on a loaded host lost 100 samples of a 100 Hz truth kept
-#: 100 deep: the interaction demo's report found a hole in its step window)
-TRUTH_KEPT_S = 5.0
+#: 100 deep: the interaction demo's report found a hole in its step window); as long as the
+#: catch-up a starved driver publishes at once (``can.process.TRUTH_BACKLOG``)
+TRUTH_KEPT_S = 20.0
 
 #: The driver's reader of the simulated patient's trunk (``/brace/sim/body_rest``): reliable,
 #: 250 deep (5 s of a 50 Hz stream). The simulator plays a stream of rest poses out by their
