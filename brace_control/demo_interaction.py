@@ -16,7 +16,9 @@ against the simulator's truth (issue 14, docs/interaction.md):
    the actuators allow: the lumbar brace sways +-10 mm and +-5 deg at 0.2 Hz)
    and settles; the brace follows;
 4. a wrench-goal step on ``/brace/wrench_goal`` (lumbar: 30 N vertical, base frame) and
-   back to zero;
+   back to zero, each held from the driver's ``applied`` of it (the step's phase in
+   ``phases.json`` starts there: the step response is the controller's, not the host's
+   delivery of the goal);
 5. the patient returns to where it rested; ``/interaction_node/stop``; a position goal to
    the home pose (the transition back to position mode).
 
@@ -64,6 +66,9 @@ INTERACTION_TOPICS = {
 OPTIONAL_TOPICS = (topics.POSE_SETPOINT, topics.ACTUATOR_SETPOINT)
 #: Hz: how often the scripted patient publishes its trunk's rest pose
 PATIENT_RATE_HZ = 50.0
+#: s a wrench goal the interaction node accepted may take to reach the driver's cycle (its
+#: ``applied``): a starved host delivered one 2.6 s late (2026-11-29)
+APPLY_TIMEOUT_S = 20.0
 #: the sway per pose kind (SI: m, rad) before it is fitted to the device (only the
 #: force-controlled axes sway): issue 14's +-10 mm vertically, +-5 deg in rotation
 SWAY = {'planar': (0.005, 0.010, math.radians(5.0)), 'xy': (0.010, 0.010), 'path': (0.010,),
@@ -244,13 +249,18 @@ class _Patient:
         self.pose_goal_pub = node.create_publisher(PoseStamped, topics.POSE_GOAL, topics.GOAL_QOS)
         self.lock = threading.Lock()
         self.events: list[tuple[str, str, str]] = []
+        #: wrench goal name -> when the driver's cycle took it (ns, wall clock: ``applied_ns``)
+        self.applied: dict[str, int] = {}
         node.create_subscription(DiagnosticStatus, topics.GOAL_STATUS, self._on_status, topics.STATUS_QOS)
 
     def _on_status(self, m: Any) -> None:
         from .nodes.msgs import status_values
         v = status_values(m)
+        state = v.get('state', m.message)
         with self.lock:
-            self.events.append((m.name, v.get('state', m.message), v.get('reason', '')))
+            if state == 'applied' and v.get('applied_ns', '').isdigit():
+                self.applied[m.name] = int(v['applied_ns'])
+            self.events.append((m.name, state, v.get('reason', '')))
 
     def wait_event(self, pred: Callable[[str, str, str], bool], timeout: float, what: str, *,
                    since: int = 0) -> tuple[str, str, str]:
@@ -334,9 +344,13 @@ def run_session(node: Any, patient: _Patient, script: Script, services: dict[str
     """
     from .bringup import call_trigger
 
-    def phase(name: str, body: Callable[[], None]) -> None:
+    def phase(name: str, body: Callable[[], Any]) -> None:
+        """``body``'s phase, from now or from the instant it returns if it returns one (an
+        ``int``: ns, wall clock)."""
         t0 = time.time_ns()
-        body()
+        began = body()
+        if isinstance(began, int):
+            t0 = began
         phases.append((name, t0, time.time_ns()))
         log(f'  {name}: {(phases[-1][2] - t0) * 1e-9:.1f} s')
 
@@ -354,21 +368,31 @@ def run_session(node: Any, patient: _Patient, script: Script, services: dict[str
     phase('sway', lambda: patient.sway(script, stop))
     phase('settle', lambda: _pause(1.5, stop))
 
-    def step(w: np.ndarray, label: str) -> Callable[[], None]:
-        def body() -> None:
+    def step(w: np.ndarray, label: str) -> Callable[[], int | None]:
+        def body() -> int | None:
+            """The goal's phase runs from when the driver's cycle took it (its ``applied``)
+            for ``hold_s``: on a starved host a goal reaches the driver seconds after its
+            publish, and a hold timed from the publish cut the step short (a run of
+            2026-11-29: applied 2.6 s into a 3 s step)."""
             n = len(patient.events)
             patient.wrench_goal(w)
             answer = patient.wait_event(lambda name, s, r: '/wrench_goal/' in name and
                                         s in ('accepted', 'rejected'), 5.0, f'{label} answered', since=n)
             if answer[1] != 'accepted':
                 raise RuntimeError(f'wrench goal {label} rejected: {answer[2]}')
-            _pause(hold_s, stop)
             # the driver checks the goal again at its own pose: its rejection comes after
             # the node's acceptance, as a 'rejected' of the same goal
+            taken = patient.wait_event(lambda name, s, r: name == answer[0] and s in ('applied', 'rejected'),
+                                       APPLY_TIMEOUT_S, f'{label} applied by the driver', since=n)
+            if taken[1] == 'rejected':
+                raise RuntimeError(f'wrench goal {label} rejected after its acceptance: {taken[2]}')
+            _pause(hold_s, stop)
             with patient.lock:
                 late = [ev for ev in patient.events[n:] if ev[0] == answer[0] and ev[1] == 'rejected']
+                applied = patient.applied.get(answer[0])
             if late:
                 raise RuntimeError(f'wrench goal {label} rejected after its acceptance: {late[-1][2]}')
+            return applied
         return body
 
     phase('wrench step', step(script.step, 'step'))

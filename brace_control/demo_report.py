@@ -779,6 +779,9 @@ class InteractionRun:
     :ivar soft_force_limit: ``safety.soft_force_limit`` as the stack resolves it (N, N·m).
     :ivar statuses: every ``/brace/goal_status`` event as ``(recorded s, name, state, reason)``
         (the interaction node's ``interaction_node/interaction/<n>``, trajectory_node's goals).
+    :ivar applied: per wrench goal, in the order the interaction node answered them (its
+        ``wrench_goal/<n>`` statuses: the order the goals were published), the s the driver's
+        cycle took it (its ``applied``: ``applied_ns``), NaN for a goal never applied.
     """
 
     run: RunData
@@ -791,6 +794,7 @@ class InteractionRun:
     soft_force_limit: float
     statuses: list[tuple[float, str, str, str]] = field(default_factory=list)
     script: dict[str, Any] = field(default_factory=dict)
+    applied: list[float] = field(default_factory=list)
 
     def phase(self, name: str) -> tuple[float, float]:
         """``(start, end)`` s of a phase; ``(nan, nan)`` if the session did not reach it."""
@@ -834,6 +838,7 @@ def read_interaction(path: str | Path, phases: str | Path | Mapping[str, Any] | 
     store = _typestore()
     rows: dict[str, list] = {'body': [], 'rest': [], 'goal': [], 'setpoint': []}
     statuses: list[tuple[float, str, str, str]] = []
+    applied: dict[str, float] = {}                  # wrench goal name -> applied s, in order
     pose_topics = {topics.SIM_BODY_POSE: 'body', topics.SIM_BODY_REST: 'rest',
                    topics.POSE_SETPOINT: 'setpoint'}
     with Reader(Path(path)) as reader:
@@ -844,7 +849,12 @@ def read_interaction(path: str | Path, phases: str | Path | Mapping[str, Any] | 
             m = store.deserialize_cdr(data, conn.msgtype)
             if conn.topic == topics.GOAL_STATUS:
                 v = status_values(m)
-                statuses.append(((t_ns - t0) * 1e-9, m.name, v.get('state', m.message), v.get('reason', '')))
+                state = v.get('state', m.message)
+                statuses.append(((t_ns - t0) * 1e-9, m.name, state, v.get('reason', '')))
+                if '/wrench_goal/' in m.name:
+                    applied.setdefault(m.name, math.nan)
+                    if state == 'applied' and v.get('applied_ns', '').isdigit():
+                        applied[m.name] = (int(v['applied_ns']) - t0) * 1e-9
                 continue
             stamp = stamp_to_ns(m.header.stamp)
             t = ((stamp or t_ns) - t0) * 1e-9
@@ -874,7 +884,7 @@ def read_interaction(path: str | Path, phases: str | Path | Mapping[str, Any] | 
     axes = np.full(mech.dof, bool(axes[0])) if axes.size == 1 else axes
     soft = soft_force_limit(cfg)
     return InteractionRun(run, series('body'), series('rest'), series('goal'), series('setpoint'),
-                          spans, axes, soft, statuses, dict(doc.get('script', {})))
+                          spans, axes, soft, statuses, dict(doc.get('script', {})), list(applied.values()))
 
 
 @dataclass
@@ -1010,8 +1020,10 @@ def summarise_interaction(ir: InteractionRun) -> InteractionReport:
       pose-axis components, :func:`wrench_pose_axes` with the true theta);
     * the largest |ring - trunk| per axis over ``/brace/sim/pose`` and ``/brace/sim/body_pose``
       samples of the identical stamp during the sway;
-    * the step: from the stamp of the wrench goal that is nonzero on the script's step axis
-      to the next goal's, :func:`step_response` of the true wrench on that axis.
+    * the step: from when the driver's cycle took the wrench goal that is nonzero on the
+      script's step axis (its ``applied``; the goal's stamp in a bag without one) to when it
+      took the next goal (likewise), :func:`step_response` of the true wrench on that axis: the
+      controller's response, not the host's delivery of the goal (seconds on a starved host).
     """
     run = ir.run
     kind = run.kind
@@ -1054,10 +1066,15 @@ def summarise_interaction(ir: InteractionRun) -> InteractionReport:
     k = int(ir.script.get('step_axis', force[0] if force.size else 0))
     goals = ir.wrench_goal
     nz = np.flatnonzero(np.abs(goals.v[:, k]) > 0) if len(goals) else np.zeros(0, dtype=int)
+    def took(i: int) -> float:
+        """When the driver took goal ``i``: its ``applied``, else its stamp."""
+        a = ir.applied[i] if i < len(ir.applied) else math.nan
+        return float(goals.t[i]) if math.isnan(a) else a
+
     if nz.size:
         g0 = int(nz[0])
-        ta = float(goals.t[g0])
-        tb = float(goals.t[g0 + 1]) if g0 + 1 < len(goals) else min(ended_at, run.duration_s)
+        ta = took(g0)
+        tb = took(g0 + 1) if g0 + 1 < len(goals) else min(ended_at, run.duration_s)
         goal = float(goals.v[g0, k])
         m = (run.wrench_true.t >= ta) & (run.wrench_true.t < tb)
         settle, overshoot = step_response(run.wrench_true.t[m] - ta, w_true[m, k], goal)

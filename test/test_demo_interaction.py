@@ -55,6 +55,7 @@ def _theta(q) -> float:
 def _read(bag: Path) -> dict:
     """Every topic the numbers need, decoded here: stamps (ns) and values."""
     rows: dict[str, list] = {'pose': [], 'body': [], 'wrench': [], 'goal': [], 'status': [], 'wrench_rx': []}
+    applied: dict[str, int | None] = {}       # wrench goal name (in answer order) -> applied_ns
     with Reader(bag) as reader:
         t0 = reader.start_time
         for conn, t_ns, data in reader.messages():
@@ -65,6 +66,10 @@ def _read(bag: Path) -> dict:
             if conn.topic == '/brace/goal_status':
                 v = {kv.key: kv.value for kv in m.values}
                 rows['status'].append(((t_ns - t0) * 1e-9, m.name, v.get('state', m.message)))
+                if '/wrench_goal/' in m.name:
+                    applied.setdefault(m.name, None)
+                    if v.get('state') == 'applied':
+                        applied[m.name] = int(v['applied_ns'])
                 continue
             stamp = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
             if conn.topic == '/brace/sim/pose':
@@ -76,7 +81,7 @@ def _read(bag: Path) -> dict:
                 rows['wrench_rx'].append(t_ns)
             else:
                 rows['goal'].append((stamp, m.wrench.force.y))
-    return {'t0': t0, **rows}
+    return {'t0': t0, **rows, 'applied': list(applied.values())}
 
 
 def test_interaction_demo_writes_its_figure_and_report(demo):
@@ -152,10 +157,14 @@ def test_interaction_report_numbers_agree_with_the_recorded_truth(demo):
     assert err['y'] == pytest.approx(max(dy), rel=1e-6, abs=1e-9)
     assert err['theta'] == pytest.approx(max(dth), rel=1e-6, abs=1e-9)
 
-    # the step: from the stamp of the 30 N goal to the next goal's, on the true Fy
+    # the step: from when the driver's cycle took the 30 N goal (its 'applied', relayed by the
+    # interaction node) to when it took the next goal, on the true Fy
     (g_stamp, g), (next_stamp, zero) = data['goal'][0], data['goal'][1]
     assert (g, zero) == (30.0, 0.0) and report['step']['goal'] == 30.0
-    ta, tb = (g_stamp - t0) * 1e-9, (next_stamp - t0) * 1e-9
+    assert len(data['applied']) == 2 and None not in data['applied'], data['status']
+    took_step, took_zero = data['applied']
+    assert g_stamp <= took_step < next_stamp <= took_zero, (g_stamp, took_step, next_stamp, took_zero)
+    ta, tb = (took_step - t0) * 1e-9, (took_zero - t0) * 1e-9
     assert report['step']['window_s'] == pytest.approx([ta, tb], abs=1e-9)
     m = (tw >= ta) & (tw < tb)
     assert m.sum() > 50, _no_step_samples(data, ta, tb) + f'; the demo warned:\n{_warnings(proc)}'
@@ -184,7 +193,7 @@ def _step_not_held(data: dict, ta: float, tb: float, t_rel: np.ndarray, resp: np
     each = [(round(float(t), 2), round(float(f), 2)) for t, f in zip(t_rel[::10], resp[::10])]
     goals = [(round((st - t0) * 1e-9, 3), v) for st, v in data['goal']]
     return (f'step window [{ta:.3f}, {tb:.3f}] s; the wrench goals (s, Fy) {goals}; the goal statuses '
-            f'(recorded s, name, state) {events}; the true Fy (s from the goal, N) {each}\n'
+            f'(recorded s, name, state) {events}; the true Fy (s from the goal being applied, N) {each}\n'
             f'the demo printed:\n{proc.stdout[-2500:]}\n{proc.stderr[-2500:]}')
 
 

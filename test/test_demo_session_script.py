@@ -9,6 +9,7 @@ driver never took would report a step response of a step that did not happen.
 from __future__ import annotations
 
 import threading
+import time
 from types import SimpleNamespace
 
 import numpy as np
@@ -30,6 +31,7 @@ class ScriptedPatient:
     def __init__(self, answers: list[list[tuple[str, str]]]) -> None:
         self.lock = threading.Lock()
         self.events: list[tuple[str, str, str]] = []
+        self.applied: dict[str, int] = {}
         self.answers = list(answers)
         self.goals: list[list[float]] = []
         self.mech = SimpleNamespace(home_pose=np.zeros(3))
@@ -50,7 +52,10 @@ class ScriptedPatient:
     def wrench_goal(self, w) -> None:
         self.goals.append(list(w))
         for state, reason in self.answers.pop(0):
-            self.emit(f'{GOAL}/{len(self.goals)}', state, reason)
+            name = f'{GOAL}/{len(self.goals)}'
+            if state == 'applied':           # the driver's wall clock then (ns) in its reason slot
+                self.applied[name] = int(reason)
+            self.emit(name, state, reason)
 
     def pose_goal(self, pose) -> None:
         self.emit('trajectory_node/goal/1', 'succeeded')
@@ -68,18 +73,42 @@ def services(monkeypatch):
 
 
 def _run(patient, services) -> list[str]:
+    return [p[0] for p in _run_phases(patient, services)]
+
+
+def _run_phases(patient, services) -> list:
     script = SimpleNamespace(rest=np.zeros(3), centre=np.zeros(3), step=np.array([0.0, 30.0, 0.0]))
     phases: list = []
     run_session(patient, patient, script, services, executor=None, stop=threading.Event(),
                 phases=phases, hold_s=0.0, log=lambda line: None)
-    return [p[0] for p in phases]
+    return phases
 
 
 def test_a_session_whose_goals_are_taken_runs_every_phase(services):
-    patient = ScriptedPatient([[('accepted', '')], [('accepted', '')]])
+    patient = ScriptedPatient([[('accepted', ''), ('applied', '1')], [('accepted', ''), ('applied', '2')]])
     assert _run(patient, services) == ['zero-torque at rest', 'lean', 'sway', 'settle', 'wrench step',
                                       'wrench zero', 'return', 'position goal']
     assert patient.goals == [[0.0, 30.0, 0.0], [0.0, 0.0, 0.0]]
+
+
+def test_a_step_s_phase_begins_when_the_driver_applied_its_goal(services):
+    """The report times the step response from the phase's start: the driver's ``applied_ns``
+    (a goal a starved host delivers late is not a slow controller), not the publish."""
+    applied = time.time_ns() + 3_000_000_000               # 3 s after the publish, say
+    patient = ScriptedPatient([[('accepted', ''), ('applied', str(applied))],
+                               [('accepted', ''), ('applied', str(applied + 1))]])
+    phases = {name: (t0, t1) for name, t0, t1 in _run_phases(patient, services)}
+    assert phases['wrench step'][0] == applied
+    assert phases['wrench zero'][0] == applied + 1
+    assert phases['settle'][0] < applied                    # the other phases: their own start
+
+
+def test_a_goal_the_driver_never_applies_ends_the_session(services, monkeypatch):
+    monkeypatch.setattr('brace_control.demo_interaction.APPLY_TIMEOUT_S', 0.2)
+    patient = ScriptedPatient([[('accepted', '')]])
+    with pytest.raises(RuntimeError, match='step applied by the driver'):
+        _run(patient, services)
+    assert patient.goals == [[0.0, 30.0, 0.0]]
 
 
 def test_a_step_the_driver_rejects_after_the_nodes_acceptance_ends_the_session_with_its_reason(services):
@@ -92,6 +121,6 @@ def test_a_step_the_driver_rejects_after_the_nodes_acceptance_ends_the_session_w
 
 def test_a_rejection_of_an_earlier_goal_does_not_count_against_the_next(services):
     # goal 1 rejected late, as seen by the step; the zero goal (2) is judged on its own events
-    patient = ScriptedPatient([[('accepted', '')], [('accepted', '')]])
+    patient = ScriptedPatient([[('accepted', ''), ('applied', '1')], [('accepted', ''), ('applied', '2')]])
     patient.emit(f'{GOAL}/0', 'rejected', 'an earlier session')
     assert 'position goal' in _run(patient, services)

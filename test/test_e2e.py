@@ -267,7 +267,9 @@ class Probe:
             return [dict(status_values(s), arrival=t) for t, s in self.statuses]
 
     def terminal(self) -> list[dict]:
-        return [e for e in self.events() if e['state'] != 'accepted']
+        """The goal statuses that end a goal (not a position goal's or a wrench goal's
+        ``accepted``, nor a wrench goal's ``applied``)."""
+        return [e for e in self.events() if e['state'] not in ('accepted', 'applied')]
 
     def stops(self) -> list[str]:
         """Driver states that were a protective stop."""

@@ -102,3 +102,34 @@ def test_an_estimate_in_another_frame_rejects_the_goal_saying_so(rig):
     assert end['state'] == 'rejected'
     assert 'unusable' in end['reason'] and "'map'" in end['reason']
     assert not forwarded
+
+
+def test_the_driver_s_answer_to_each_goal_is_published_for_that_goal(ros, rig):
+    """The driver names the goal it answers by the stamp of the message the node sent it:
+    two goals in flight, answered in the other order (the second rejected at the driver's
+    pose, the first applied), each answer goes to its own goal's name, ``applied`` with the
+    driver's ``applied_ns``."""
+    from brace_control.nodes.msgs import stamp_to_ns, status_msg
+
+    outcome, estimate, forwarded = rig
+    estimate(_pose(0.39, 0.0))
+    first, second = outcome(_wrench(10.0, BASE)), outcome(_wrench(20.0, BASE))
+    assert (first['state'], second['state']) == ('accepted', 'accepted')
+    ros.spin_until(lambda: len(forwarded) == 2, what='both goals forwarded')
+    probe = ros.node('probe_driver_events')
+    events = probe.create_publisher(DiagnosticStatus, topics.EXECUTION_STATUS, topics.STATUS_QOS)
+    statuses = ros.collect(probe, DiagnosticStatus, topics.GOAL_STATUS, topics.STATUS_QOS)
+    ros.wait_matched(events)
+    stamps = [stamp_to_ns(m.header.stamp) for m in forwarded]
+    events.publish(status_msg('can_driver_node/interaction/1', 'goal_rejected', kind='goal_rejected',
+                              reason='above the capacity at its pose', goal_stamp=stamps[1]))
+    events.publish(status_msg('can_driver_node/interaction/1', 'goal_applied', kind='goal_applied',
+                              reason='', goal_stamp=stamps[0], applied_ns=1234567890))
+    def answers():              # (a late joiner of the goal statuses also gets the 'accepted's)
+        return {(m.name.rsplit('/', 1)[-1], m.message): _values(m) for m in list(statuses)
+                if m.message != 'accepted'}
+    ros.spin_until(lambda: len(answers()) >= 2, what="the driver's answers as goal statuses")
+    got = answers()
+    assert set(got) == {('1', 'applied'), ('2', 'rejected')}, got
+    assert got[('1', 'applied')]['applied_ns'] == '1234567890'
+    assert got[('2', 'rejected')]['reason'] == 'the driver: above the capacity at its pose'

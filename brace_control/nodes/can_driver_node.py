@@ -62,7 +62,11 @@ When active:
   per event of a trajectory: ``name`` = ``can_driver_node/trajectory/<stamp ns>``,
   ``message`` = accepted | rejected | started | finished | stopped | preempted, ``values``
   stamp, kind, reason, positions, time: when it happened, ns of ROS time; ``started``: the
-  SYNC whose targets are the trajectory's first);
+  SYNC whose targets are the trajectory's first); and per event of an interaction
+  (``name`` = ``can_driver_node/interaction/<n>``): started, stopping, stopped, aborted,
+  preempted, and per wrench goal from ``/brace/interaction/goal``: ``goal_applied`` (the
+  cycle's admittance has it: ``applied_ns``, the wall clock then) or ``goal_rejected`` (the
+  reason), each with ``goal_stamp`` (ns, the goal message's stamp: which goal);
 * publishes ``/brace/driver_state`` (``DiagnosticStatus``, latched: transient local) on every
   change of state, faults, homing, or motion (a motion starting or ending):
   ``message`` = disabled | enabled | halted | homing | protective stop: <faults> | ...,
@@ -728,19 +732,27 @@ class CanDriverNode(LifecycleNode):
 
     def _on_interaction_goal(self, msg: Any) -> None:
         """The wrench goal in pose-axis components (interaction_node checked it; the
-        controller checks again against the pose it is at; a rejection is an event)."""
+        controller checks again against the pose it is at). Either way an event says what
+        became of it, named by the goal's stamp: ``goal_applied`` when the cycle has it (a
+        client times a step from then, not from its own publish: a starved host delivers a
+        goal seconds late) or ``goal_rejected``."""
         from ..interaction import GoalRejected
         from .msgs import pose_kind
         kind = pose_kind(self.mechanism)
         f, t = msg.wrench.force, msg.wrench.torque
         w = {'spherical': [t.x, t.y, t.z], 'planar': [f.x, f.y, t.z], 'xy': [f.x, f.y]}.get(kind, [f.x])
+        tag = self._interaction_sessions
+        goal_stamp = stamp_to_ns(msg.header.stamp)
         try:
             self.master.set_interaction_goal(w)
         except (ValueError, GoalRejected) as exc:
-            tag = self._interaction_sessions
             self._exec_pub.publish(status_msg(f'{self.get_name()}/interaction/{tag}', 'goal_rejected',
                                               level=DiagnosticStatus.WARN, stamp=tag, kind='goal_rejected',
-                                              reason=str(exc), goal=list(w)))
+                                              reason=str(exc), goal=list(w), goal_stamp=goal_stamp))
+            return
+        self._exec_pub.publish(status_msg(f'{self.get_name()}/interaction/{tag}', 'goal_applied',
+                                          stamp=tag, kind='goal_applied', reason='', goal=list(w),
+                                          goal_stamp=goal_stamp, applied_ns=time.time_ns()))
 
     # ------------------------------------------------------------------ planned motions
 

@@ -23,13 +23,15 @@ the next, a loop delay of two SYNC periods instead of the 16-47 ms through ROS
   it again at its own pose: a rejection there is reported too);
 * subscribes ``/brace/execution_status``: the driver's in-cycle events
   (``can_driver_node/interaction/<n>``: started, stopping, stopped, aborted, preempted,
-  goal_rejected) become this node's goal statuses;
+  goal_applied, goal_rejected) become this node's goal statuses;
 * publishes ``/brace/goal_status`` (``DiagnosticStatus``, one message per event, like
   trajectory_node's goals): ``name`` = ``interaction_node/interaction/<n>`` with ``message``
   ``started`` | ``rejected`` | ``stopping`` | ``stopped`` | ``aborted`` (a limit, a halt, a
   fault, the drives disabled, or a position goal that took over: the reason);
-  ``name`` = ``interaction_node/wrench_goal/<n>`` with ``accepted`` | ``rejected``.
-  ``values``: ``state``, ``reason``, ``goal``;
+  ``name`` = ``interaction_node/wrench_goal/<n>`` with ``accepted`` (this node checked it
+  and sent it), then ``applied`` (the driver's cycle has it; ``applied_ns``: the wall clock
+  then, what a step response is timed from) or ``rejected`` (here, or by the driver at its
+  own pose: "the driver: ..."). ``values``: ``state``, ``reason``, ``goal``;
 * position goals and interaction do not fight: trajectory_node, given a goal while the
   mode runs, has the driver end it (an empty trajectory: the virtual motion brakes to
   rest, ``aborted``: "a position goal arrived") and plans the goal from the positions the
@@ -56,11 +58,16 @@ from ..interaction import AdmittanceController, AdmittanceParams, GoalRejected
 from ..mechanisms import mechanism_from_config
 from . import topics
 from .diagnostics import OK, WARN, NodeDiagnostics
-from .msgs import MalformedMessage, now_stamp, pose_from_msg, pose_kind, status_msg, status_values
+from .msgs import (MalformedMessage, now_stamp, pose_from_msg, pose_kind, stamp_to_ns, status_msg,
+                   status_values)
 from .params import declare_device_parameters
 from .runner import run_node
 
 __all__ = ['InteractionNode', 'main', 'wrench_in_pose_axes']
+
+#: the wrench goals whose driver events this node still names (the newest; a goal's
+#: ``applied`` or driver ``rejected`` comes within one executor pass of the driver's)
+GOALS_KEPT = 64
 
 
 def wrench_in_pose_axes(msg: WrenchStamped, *, kind: str, theta: float, base_frame: str,
@@ -119,6 +126,9 @@ class InteractionNode(Node):
         self._session = 0
         self._goal_ids = itertools.count(1)
         self._last_goal_name = ''
+        #: the goals sent to the driver, by the stamp of the message sent (the driver's events
+        #: name a goal by it), the newest GOALS_KEPT
+        self._goal_names: dict[int, str] = {}
         self._status_pub = self.create_publisher(DiagnosticStatus, topics.GOAL_STATUS, topics.GOAL_STATUS_QOS)
         self._goal_pub = self.create_publisher(WrenchStamped, topics.INTERACTION_GOAL, topics.GOAL_QOS)
         self.create_subscription(PoseStamped, topics.POSE, self._on_pose, topics.MEASURED_QOS, raw=True)
@@ -177,8 +187,11 @@ class InteractionNode(Node):
                 self.get_logger().warning(f'wrench goal {gid} rejected: {exc}')
                 return
             self._last_goal_name = name
-        out = WrenchStamped()
-        out.header.stamp = now_stamp(self)
+            out = WrenchStamped()
+            out.header.stamp = now_stamp(self)
+            self._goal_names[stamp_to_ns(out.header.stamp)] = name
+            if len(self._goal_names) > GOALS_KEPT:
+                del self._goal_names[next(iter(self._goal_names))]
         out.header.frame_id = self.base_frame
         comp = [float(c) for c in w]
         if self._kind == 'spherical':
@@ -189,9 +202,11 @@ class InteractionNode(Node):
             out.wrench.force.x, out.wrench.force.y = comp
         else:
             out.wrench.force.x = comp[0]
-        self._goal_pub.publish(out)
+        # 'accepted' first: the driver's answer ('applied', 'rejected') may come back in another
+        # thread as soon as the goal is out
         self._status_pub.publish(status_msg(name, 'accepted', state='accepted', reason='',
                                             goal=list(comp), mode='active'))
+        self._goal_pub.publish(out)
 
     def _on_execution(self, msg: DiagnosticStatus) -> None:
         """The driver's in-cycle interaction events -> this node's goal statuses."""
@@ -201,11 +216,20 @@ class InteractionNode(Node):
         reason = values.get('reason', '')
         kind = msg.message
         with self._lock:
-            if kind == 'goal_rejected':
-                if self._last_goal_name:
-                    self._status_pub.publish(status_msg(self._last_goal_name, 'rejected',
-                                                        level=DiagnosticStatus.WARN, state='rejected',
-                                                        reason=f'the driver: {reason}'))
+            if kind in ('goal_applied', 'goal_rejected'):
+                try:
+                    name = self._goal_names.get(int(values.get('goal_stamp', '')), self._last_goal_name)
+                except ValueError:                  # a driver that does not say which goal
+                    name = self._last_goal_name
+                if not name:
+                    return
+                if kind == 'goal_rejected':
+                    self._status_pub.publish(status_msg(name, 'rejected', level=DiagnosticStatus.WARN,
+                                                        state='rejected', reason=f'the driver: {reason}'))
+                else:
+                    self._status_pub.publish(status_msg(name, 'applied', state='applied', reason='',
+                                                        goal=values.get('goal', ''),
+                                                        applied_ns=values.get('applied_ns', '')))
                 return
             if kind == 'stopping':
                 self._publish('stopping', reason)
