@@ -327,3 +327,16 @@ def test_timer_callback_has_no_parameters_and_calls_through() -> None:
     assert inspect.signature(cb) is inspect.signature(cb)          # precomputed, not rebuilt
     with pytest.raises(TypeError, match='takes arguments'):
         timer_callback(lambda info: None)
+
+
+def test_stamped_after_is_every_item_stamped_later_in_order() -> None:
+    """``stamped_after`` (a walk back from the newest) gives what a filter of the whole record
+    gives: stamps in order with repeats, asked before, inside, on and after the record."""
+    from collections import deque
+    from types import SimpleNamespace
+
+    from brace_control.can.sync import stamped_after
+    stamps = [1.0, 1.0, 1.5, 2.0, 2.0, 2.0, 3.25]
+    kept = deque(SimpleNamespace(stamp=s, i=i) for i, s in enumerate(stamps))
+    for asked in (0.0, 1.0, 1.2, 2.0, 3.0, 3.25, 9.0):
+        assert stamped_after(kept, asked) == [x for x in kept if x.stamp > asked], asked

@@ -65,6 +65,7 @@ from ..control.execution import ExecutionEvent, ExecutionState
 from .errors import DriverError, DriverInitializationError
 from .state import Feedback, MasterConfig, MasterState, MasterStatus
 from .supervision import Fault, FaultKind
+from .sync import stamped_after
 
 __all__ = ['MasterProcess', 'Snapshot', 'label_threads', 'snapshot_of', 'wrench_capacity_context']
 
@@ -286,14 +287,8 @@ class _SimView(_Remote):
         s), oldest first, among the last :data:`TRUTH_BACKLOG`: none is lost to a reader that
         falls behind the snapshots for a while."""
         owner = self._owner
-        out: list[Any] = []
-        with owner._truths_lock:          # from the newest back: no copy of the whole backlog
-            for truth in reversed(owner._truths):
-                if truth.stamp <= stamp:
-                    break
-                out.append(truth)
-        out.reverse()
-        return out
+        with owner._truths_lock:
+            return stamped_after(owner._truths, stamp)
 
     def set_rest_pose(self, pose: np.ndarray, stamp: float | None = None) -> None:
         """A stream (the patient's trunk, 50-100 Hz): sent, not waited for."""

@@ -9,8 +9,23 @@ from __future__ import annotations
 
 import time
 from collections import deque
+from collections.abc import Reversible
+from typing import Any
 
-__all__ = ['SyncClock']
+__all__ = ['SyncClock', 'stamped_after']
+
+
+def stamped_after(kept: Reversible[Any], stamp: float) -> list[Any]:
+    """The items of ``kept`` (ordered by their ``stamp``, a SYNC's wall-clock time, as the
+    simulator's truths are) stamped after ``stamp``, oldest first: a walk back from the
+    newest, which does not copy the rest of a long record (the caller holds its lock)."""
+    out: list[Any] = []
+    for item in reversed(kept):
+        if item.stamp <= stamp:
+            break
+        out.append(item)
+    out.reverse()
+    return out
 
 
 class SyncClock:

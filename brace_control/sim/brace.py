@@ -91,6 +91,7 @@ import numpy as np
 
 from ..can.dictionary import ObjectRef, eds_files
 from ..can.state import load_cell_source
+from ..can.sync import stamped_after
 from ..can.units import encoder_counts, per_actuator
 from .device import SimulatedDevice
 from ..can.units import actuator_kind, scaling_from_config
@@ -435,14 +436,8 @@ class SimulatedBrace:
         s), oldest first, among the last :data:`TRUTH_RECORD_S`: what a reader that missed
         them for a while (the control cycle's process, its link to the node full) still
         has to send."""
-        out: list[BraceTruth] = []
         with self.lock:
-            for truth in reversed(self._record):
-                if truth.stamp <= stamp:
-                    break
-                out.append(truth)
-        out.reverse()
-        return out
+            return stamped_after(self._record, stamp)
 
     def set_rest_pose(self, pose: np.ndarray, stamp: float | None = None) -> None:
         """Move the body's rest pose (the patient moves): the physics pulls the platform
