@@ -417,19 +417,18 @@ class SimulatedBrace:
     def truth_at(self, stamp: float) -> BraceTruth:
         """The state after the SYNC whose bus timestamp is nearest ``stamp`` (wall clock, s),
         among the last :data:`TRUTH_HISTORY`: the truth of the same SYNC as a measurement."""
-        with self.lock:
-            history = tuple(self._history) or (self._truth,)
         # the stamps rise with the SYNCs, so the distance falls then rises: walk back from
         # the newest (the one asked for, mostly) while it does not rise; among equal
-        # distances the older, as min() over the history would take
-        best = history[-1]
-        gap = abs(best.stamp - stamp)
-        for truth in reversed(history[:-1]):
-            d = abs(truth.stamp - stamp)
-            if d > gap:
-                break
-            best, gap = truth, d
-        return best
+        # distances the older, as min() over the history would take. Under the lock, as
+        # stamped_after walks the record: no copy of the history
+        best, gap = None, math.inf
+        with self.lock:
+            for truth in reversed(self._history):
+                d = abs(truth.stamp - stamp)
+                if d > gap:
+                    break
+                best, gap = truth, d
+            return self._truth if best is None else best
 
     def recorded_since(self, stamp: float) -> list[BraceTruth]:
         """The truths kept at ``sim.truth_rate_hz`` stamped after ``stamp`` (wall clock,
