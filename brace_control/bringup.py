@@ -41,6 +41,7 @@ after a clean shutdown, 1 when a node failed (a process died or a node could not
 from __future__ import annotations
 
 import argparse
+import gc
 import importlib
 import inspect
 import os
@@ -434,8 +435,20 @@ class BringUp:
             t.join(timeout)
         for ex in self._executors:
             ex.shutdown(timeout_sec=timeout)
+        # as runner.run_node ends a node: out of its executor first, then destroyed, then the
+        # executors dropped. The events executor keeps callbacks registered on a node's
+        # subscriptions and publishers; a node destroyed still in it crashed the bring-up
+        # (SIGSEGV in destroy_node, 1 Ctrl-C of 7 in a loop; ros2/rclpy#1644)
+        for ex in self._executors:
+            for node in list(ex.get_nodes()):
+                try:
+                    ex.remove_node(node)
+                except Exception:  # noqa: BLE001 - a teardown step; the next ones still run
+                    pass
         for node in list(self.nodes.values()) + ([self._helper] if self._helper else []):
             node.destroy_node()
+        self._executors.clear()
+        gc.collect()
 
     def __enter__(self) -> 'BringUp':
         return self.start()
