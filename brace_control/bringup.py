@@ -54,12 +54,15 @@ import time
 import weakref
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from .can.errors import DriverError
 from .checks import check_device
 from .config import ConfigError, load_device_config, resolve_device_file
 from .nodes import DRIVER_NODE, NODE_NAMES, topics
+
+if TYPE_CHECKING:
+    from .nodes.runner import StallWatch
 
 __all__ = ['NODE_NAMES', 'STACK_LINKS', 'IDEMPOTENT_SERVICES', 'BringUp', 'ProcessBringUp', 'node_class',
            'find_executable', 'call_trigger', 'disable_drives', 'missing_links', 'wait_for_links',
@@ -578,6 +581,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         # the whole device file, across its keys, before anything starts (exit 2, no traceback)
         check_device(load_device_config(resolve_device_file(args.config)))
+        from .nodes.runner import LONG_WORK_S, StallWatch, cut_short_after, spin_stall_s
+        stall_s = spin_stall_s()
     except ConfigError as exc:
         print(f'brace-bringup: configuration error: {exc}', file=sys.stderr)
         return 2
@@ -586,6 +591,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     use_discovery_profile()                   # this process's participant and the nodes'
     import rclpy
     from rclpy.signals import SignalHandlerOptions
+    # The bring-up's dead-man's switch (runner.SPIN_STALL_S), armed before its first DDS call
+    # and re-armed by its main loop, in both modes. A DDS call that deadlocks inside Fast DDS
+    # holding the interpreter lock (eProsima/Fast-DDS#6502) stops every thread of this
+    # process, the main loop and its signal handlers with it: a Ctrl-C would then do nothing,
+    # ever (the one-process CLI test, fresh-clone run 1313). Instead the kernel ends the
+    # bring-up once the loop has not turned for SPIN_STALL_S (SIGALRM, stacks on stderr); its
+    # node processes, or in one process the control cycle's process, see it gone and disable
+    # the drives. The participants' creation and the start-up may take LONG_WORK_S.
+    watch = StallWatch(stall_s)
+    watch.allow(LONG_WORK_S)
     rclpy.init(args=['brace-bringup'], signal_handler_options=SignalHandlerOptions.NO)
     try:
         running = nodes_already_running(args.nodes, stop, namespace=_namespace(extra))
@@ -597,8 +612,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if stop.is_set():
             return 0
         if args.processes:
-            return _run_processes(args, extra, stop)
-        return _run_in_process(args, extra, stop)
+            return _run_processes(args, extra, stop, watch)
+        return _run_in_process(args, extra, stop, watch)
     except ConfigError as exc:
         print(f'brace-bringup: configuration error: {exc}', file=sys.stderr)
         return 2
@@ -606,7 +621,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f'brace-bringup: the CAN driver did not come up: {exc}', file=sys.stderr)
         return 1
     finally:
-        rclpy.try_shutdown()
+        StallWatch.active = None
+        rclpy.try_shutdown()                  # under the shutdown's bound, if one was set
+        cut_short_after(None)
 
 
 #: s the bring-up watches the ROS graph for nodes of its names before it starts its own
@@ -622,6 +639,12 @@ DISABLE_CALL_S = 5.0
 #: rival watch's end, the disable service's discovery (at most 2 s) and its answer
 #: (DISABLE_CALL_S), and a margin; past it the kernel ends the bring-up (docs/safety.md §20)
 SHUTDOWN_DDS_S = 2.0 + DISABLE_CALL_S + 1.5
+#: s the whole shutdown of a bring-up in one process may take: the disable service's call
+#: (SHUTDOWN_DDS_S), then the nodes' own shutdown (the driver's ends its control cycle's
+#: process: ``runner.SHUTDOWN_S``, 15 s), the executors and the DDS teardown; past it the
+#: kernel ends the bring-up (SIGALRM, stacks on stderr) and the control cycle's process, its
+#: link closed, disables the drives (docs/safety.md §20)
+IN_PROCESS_SHUTDOWN_S = SHUTDOWN_DDS_S + 15.0
 #: announcements a bring-up's reader keeps until it takes them (one per bring-up running)
 ANNOUNCEMENTS_KEPT = 32
 #: s a node found in the graph has to answer before it counts as gone (a killed process's
@@ -745,47 +768,59 @@ class RivalWatch:
                 'drives. Stopping this one')
 
 
-def _run_in_process(args: argparse.Namespace, extra: list[str], stop: threading.Event) -> int:
+def _run_in_process(args: argparse.Namespace, extra: list[str], stop: threading.Event,
+                    watch: StallWatch) -> int:
+    from .nodes.runner import LONG_WORK_S, StallWatch, cut_short_after
+    watch.allow(LONG_WORK_S)                  # the nodes' creation, the driver's autostart
     bringup = BringUp(args.config, sim=not args.no_sim, nodes=args.nodes, extra_args=extra,
                       executor=args.executor, manual_lifecycle=args.manual_lifecycle)
     log = bringup.helper.get_logger()
     rivals = RivalWatch(bringup.helper, bringup.names, _namespace(extra))
     bringup.start()
+    # from here on the executors' threads make the DDS calls, beside this loop: it waits,
+    # turns the watch, and a stuck native call in any of them stops it turning
+    watch.rearm()
     log.info(f'{", ".join(bringup.names)} up ({bringup.config_path}); Ctrl-C to stop')
     if args.manual_lifecycle and DRIVER in bringup.names:
         log.info(_MANUAL_HINT)
     rc = 0
     while not stop.wait(0.2):
+        watch.turn()
         if not bringup.running:
             log.error('executor stopped unexpectedly')
-            bringup.shutdown()
-            return 1
+            rc = 1
+            break
         if rivals.rival is not None:
             log.error(rivals.describe())
             rc = 1
             break
-    log.info('shutting down: disabling the drives first')
+    else:
+        log.info('shutting down: disabling the drives first')
+    # the whole shutdown (the disable service, the nodes' own shutdown, the executors, the
+    # DDS teardown) is bounded, never extended: past it the kernel ends this process (stacks
+    # on stderr) and the control cycle's process, its link closed, disables the drives
+    StallWatch.active = None
+    cut_short_after(IN_PROCESS_SHUTDOWN_S)
     bringup.shutdown()
     return rc
 
 
-def _run_processes(args: argparse.Namespace, extra: list[str], stop: threading.Event) -> int:
+def _run_processes(args: argparse.Namespace, extra: list[str], stop: threading.Event,
+                   watch: StallWatch) -> int:
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
 
     from .nodes.runner import (EXIT_CONFIG, LONG_WORK_S, TEARDOWN_CUT, TEARDOWN_S, StallWatch,
-                               cut_short_after, spin_stall_s)
+                               cut_short_after)
     from .nodes.spin import BackgroundSpinner
     group = ProcessBringUp(args.config, sim=not args.no_sim, nodes=args.nodes, extra_args=extra,
                            manual_lifecycle=args.manual_lifecycle)
-    # the nodes' dead-man's switch (runner.SPIN_STALL_S) for this process too, armed before its
-    # first DDS call and re-armed by its main loop: the rival watch's DDS calls in the spinner
-    # thread may deadlock holding the interpreter lock; then the main loop stops turning, the
-    # kernel ends the bring-up, and its nodes, seeing their parent gone, stop themselves
-    watch = StallWatch(spin_stall_s())
-    # creating this process's participants up to LONG_WORK_S (on a loaded host the start-up
-    # once took over SPIN_STALL_S: fresh-clone run 210, two busy loops beside); from the
-    # rival watch's start on, whose DDS callbacks may hang holding the lock, SPIN_STALL_S
+    # the watch (main): the rival watch's DDS calls in the spinner thread may deadlock holding
+    # the interpreter lock; then the main loop stops turning, the kernel ends the bring-up, and
+    # its nodes, seeing their parent gone, stop themselves. Creating this process's
+    # participants up to LONG_WORK_S (on a loaded host the start-up once took over
+    # SPIN_STALL_S: fresh-clone run 210, two busy loops beside); from the rival watch's start
+    # on, whose DDS callbacks may hang holding the lock, SPIN_STALL_S
     watch.allow(LONG_WORK_S)
     helper = rclpy.create_node('brace_bringup')
     log = helper.get_logger()

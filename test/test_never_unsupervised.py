@@ -173,7 +173,9 @@ def test_bringup_ended_mid_motion_ends_every_node_with_the_drives_stopped(ros, t
 
 def _run_ended_mid_motion(ros, proc: subprocess.Popen, tag: str, sig) -> None:
     """The bring-up ``proc`` homes, enables and moves; then ``sig`` ends it (``'stuck'``:
-    SIGINT to a bring-up whose driver's disable never returns) and every node is gone in time."""
+    SIGINT to a bring-up whose driver's disable never returns; ``'hung'``: a rival's
+    announcement to a one-process bring-up whose handling of it hangs) and every node is gone
+    in time."""
     import rclpy
     from diagnostic_msgs.msg import DiagnosticStatus
     from geometry_msgs.msg import PoseStamped
@@ -211,13 +213,25 @@ def _run_ended_mid_motion(ros, proc: subprocess.Popen, tag: str, sig) -> None:
         pub.publish(goal)
         _wait(lambda: any(max(abs(v) for v in m.velocity) > 1e-3 for m in joints[-5:]), 20,
               f'the brace moving (goal status: {[s.message for s in statuses]})')
+        cycles = _cycle_processes(proc.pid)      # the one-process bring-up's control cycle
         t_signal = time.monotonic()
-        os.kill(proc.pid, signal.SIGINT if sig == 'stuck' else sig)
+        if sig == 'hung':
+            _announce(node, started=1, nodes=['ik_node'])     # its handling hangs (_HUNG_ON_A_RIVAL)
+        else:
+            os.kill(proc.pid, signal.SIGINT if sig == 'stuck' else sig)
         proc.wait(timeout=30)
         t_end = time.monotonic()
         if sig == 'stuck':
             assert proc.returncode == TEARDOWN_CUT, proc.returncode
             assert SHUTDOWN_DDS_S <= t_end - t_signal <= SHUTDOWN_DDS_S + 5.0, t_end - t_signal
+        if sig == 'hung':
+            assert cycles, 'no control cycle process found under the one-process bring-up'
+            assert proc.returncode == TEARDOWN_CUT, proc.returncode
+            # the stall from the announcement's arrival (discovery: up to 2 s), then the watch's
+            # 3 s, re-armed up to 1 s before, and the half second to SIGALRM
+            assert t_end - t_signal <= 2.0 + HUNG_STALL_S + 1.0 + 0.5 + 1.0, t_end - t_signal
+            _wait(lambda: not any(_alive(pid) for pid in cycles), NODES_GONE_S,
+                  f'the control cycle process(es) {cycles} gone after their bring-up\'s end')
         # each node disables what it drives, then ends: 2.45 s and 2.8 s seen in full suite
         # runs on a host giving this VM less CPU (bench/RESULTS.md, "Test suite time"). The
         # bring-up whose shutdown hung: one of its nodes once stopped spinning meanwhile (a
@@ -234,6 +248,103 @@ def _run_ended_mid_motion(ros, proc: subprocess.Popen, tag: str, sig) -> None:
             proc.wait()
         for pid in _node_pids(tag):
             os.kill(pid, signal.SIGKILL)
+
+
+def _cycle_processes(pid: int) -> list[int]:
+    """The control cycle processes (``brace_control.can.process``) whose parent is ``pid``."""
+    out = []
+    for entry in os.listdir('/proc'):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f'/proc/{entry}/stat') as f:
+                ppid = int(f.read().rsplit(')', 1)[1].split()[1])
+            with open(f'/proc/{entry}/cmdline', 'rb') as f:
+                cmd = f.read().decode(errors='replace')
+        except (OSError, ValueError, IndexError):
+            continue
+        if ppid == pid and 'brace_control.can.process' in cmd:
+            out.append(int(entry))
+    return out
+
+
+def _alive(pid: int) -> bool:
+    """``pid`` runs (not gone, not a zombie)."""
+    try:
+        with open(f'/proc/{pid}/stat') as f:
+            return f.read().rsplit(')', 1)[1].split()[0] != 'Z'
+    except OSError:
+        return False
+
+
+#: brace-bringup (one process) whose helper node, in its executor's thread, never returns from
+#: handling another bring-up's announcement (its own, at the start, passes), holding the
+#: interpreter lock (ctypes.PyDLL) as a DDS call deadlocked inside Fast DDS would: every
+#: thread of the process stops, its main loop and its signal handlers with it
+_HUNG_ON_A_RIVAL = r"""
+import ctypes, os, sys
+import brace_control.bringup as bringup
+
+_take = bringup.RivalWatch._on_announcement
+
+
+def _hung_announcement(self, msg):
+    if all(kv.value != str(os.getpid()) for kv in msg.values if kv.key == 'pid'):
+        print('the rival watch, stuck', flush=True)
+        ctypes.PyDLL(None).sleep(120)
+    _take(self, msg)
+
+
+bringup.RivalWatch._on_announcement = _hung_announcement
+sys.exit(bringup.main(sys.argv[1:]))
+"""
+#: s the hung one-process bring-up's watch allows its main loop (BRACE_SPIN_STALL_S)
+HUNG_STALL_S = 3.0
+
+
+# docs/safety.md §20
+@pytest.mark.ros
+@pytest.mark.slow
+def test_a_one_process_bringup_hung_mid_motion_ends_and_its_cycle_stops_the_drives(tmp_path):
+    """``brace-bringup`` in one process, homed, enabled, a goal running, when a DDS callback of
+    one of its executor threads hangs in native code holding the interpreter lock: nothing of
+    it runs again, not its main loop, not a Ctrl-C's handler. The kernel ends it after
+    BRACE_SPIN_STALL_S (SIGALRM, TEARDOWN_CUT, its stacks on stderr), and its control cycle's
+    process, its link closed, disables the drives and ends: the bus's frame log ends with
+    every drive commanded to stop and answering so. On its own ROS domain with a context of
+    its own: the hung process's endpoints stay matched in others until its lease runs out."""
+    import types
+
+    import rclpy
+    from rclpy.context import Context
+
+    from brace_control.nodes.runner import SPIN_STALL_ENV
+    from conftest import DOMAIN_BLOCK
+    tag = f'hung{os.getpid()}x{next(_ids)}'
+    log = tmp_path / 'bus.log'
+    base, ours = int(os.environ['BRACE_TEST_DOMAIN_BASE']), os.environ['ROS_DOMAIN_ID']
+    # the second spare of the run's block (the stuck rival watch's test takes the first)
+    spare = [d for d in range(base + DOMAIN_BLOCK - 1, base, -1) if str(d) != ours][1]
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=spare)
+    out_path, err_path = tmp_path / 'bringup.out', tmp_path / 'bringup.err'
+    with open(out_path, 'w') as out, open(err_path, 'w') as err_file:
+        proc = subprocess.Popen(
+            [sys.executable, '-c', _HUNG_ON_A_RIVAL, str(LUMBAR), '--ros-args',
+             '-p', f'can.channel:={tag}', '-p', f'can.frame_log:={log}', '-p', 'trajectory.fitts_a:=2.0'],
+            cwd=REPO, stdout=out, stderr=err_file, text=True,
+            env={**os.environ, SPIN_STALL_ENV: f'{HUNG_STALL_S:g}', 'ROS_DOMAIN_ID': str(spare)})
+    try:
+        _run_ended_mid_motion(types.SimpleNamespace(context=ctx), proc, tag, 'hung')
+    except (Exception, pytest.fail.Exception) as exc:
+        raise AssertionError(f'{exc}\n--- the bring-up\'s stderr (last 4000 characters):\n'
+                             f'{err_path.read_text()[-4000:]}') from exc
+    finally:
+        rclpy.shutdown(context=ctx)
+    assert 'the rival watch, stuck' in out_path.read_text()
+    err = err_path.read_text()
+    assert 'Timeout' in err and '_hung_announcement' in err, err[-3000:]
+    _check_the_drives_stopped_moving(log)
 
 
 def _check_the_drives_stopped_moving(log) -> None:

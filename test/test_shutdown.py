@@ -13,6 +13,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -242,6 +243,7 @@ def test_long_work_is_allowed_only_where_a_watch_runs_and_never_less_than_its_li
     import signal
 
     from brace_control.nodes import runner
+    previous = signal.getsignal(signal.SIGALRM)
     monkeypatch.setattr(runner.StallWatch, 'active', None)
     armed: list = []
     monkeypatch.setattr(runner, 'cut_short_after', armed.append)
@@ -264,6 +266,42 @@ def test_long_work_is_allowed_only_where_a_watch_runs_and_never_less_than_its_li
     runner.StallWatch.active = None                      # run_node's shutdown
     runner.allow_long_work()
     assert len(armed) == 6
+    # an in-process bring-up: the watch is its main loop's; a driver's transition runs in an
+    # executor thread while that loop turns on, and allows it nothing
+    runner.StallWatch(5.0)
+    worker = threading.Thread(target=runner.allow_long_work)
+    worker.start()
+    worker.join()
+    assert len(armed) == 6
+    signal.signal(signal.SIGALRM, previous)   # a watch sets SIGALRM's default action
+
+
+def test_the_cut_is_rearmed_from_any_thread_its_action_set_by_the_main_one():
+    """cut_short_after from a thread other than the main one (signal.signal would raise
+    there) re-arms the timer; the action, SIGALRM's default, is the main thread's to set
+    (StallWatch does, when it is made)."""
+    import signal
+
+    from brace_control.nodes import runner
+    errors: list = []
+
+    def rearm() -> None:
+        try:
+            runner.cut_short_after(300.0)
+            errors.append(signal.getitimer(signal.ITIMER_REAL)[0])
+        except Exception as exc:  # noqa: BLE001 - the failure this test looks for
+            errors.append(exc)
+        finally:
+            runner.cut_short_after(None)
+    before = signal.getsignal(signal.SIGALRM)
+    try:
+        worker = threading.Thread(target=rearm)
+        worker.start()
+        worker.join()
+    finally:
+        signal.signal(signal.SIGALRM, before)
+    assert len(errors) == 1 and isinstance(errors[0], float) and 299.0 < errors[0] <= 300.5, errors
+    assert signal.getitimer(signal.ITIMER_REAL)[0] == 0.0
 
 
 def test_a_stop_whose_systemexit_an_import_swallowed_still_ends_the_node_at_once():

@@ -95,7 +95,10 @@ def cut_short_after(seconds: float | None) -> None:
         faulthandler.cancel_dump_traceback_later()
         return
     faulthandler.dump_traceback_later(seconds, exit=False)
-    signal.signal(signal.SIGALRM, signal.SIG_DFL)
+    if threading.current_thread() is threading.main_thread():
+        # only the main thread may set a handler; another thread re-arms the timer of a
+        # watch that the main thread made (StallWatch: its action set there, at its start)
+        signal.signal(signal.SIGALRM, signal.SIG_DFL)
     signal.setitimer(signal.ITIMER_REAL, seconds + 0.5)
 
 
@@ -116,6 +119,10 @@ class StallWatch:
     def __init__(self, stall_s: float) -> None:
         self.stall_s = stall_s
         self._armed = -math.inf
+        #: the watched loop's thread: only work in it can stop the loop turning
+        self.thread = threading.current_thread()
+        if stall_s and self.thread is threading.main_thread():
+            signal.signal(signal.SIGALRM, signal.SIG_DFL)
         StallWatch.active = self
 
     def turn(self) -> None:
@@ -136,10 +143,11 @@ class StallWatch:
 
 def allow_long_work(seconds: float | None = None) -> None:
     """Long work is about to run in the watched loop's thread (:class:`StallWatch`): allow it
-    ``seconds`` (default :data:`LONG_WORK_S`). Nothing in a process without a watch (an
-    in-process bring-up, a test, the demo)."""
+    ``seconds`` (default :data:`LONG_WORK_S`). Nothing in a process without a watch (a test,
+    the demo), nor in another thread than the watched loop's: the loop turns on meanwhile
+    (an in-process bring-up's main loop while a node's executor thread runs a transition)."""
     watch = StallWatch.active
-    if watch is not None:
+    if watch is not None and threading.current_thread() is watch.thread:
         watch.allow(LONG_WORK_S if seconds is None else seconds)
 
 
