@@ -11,6 +11,7 @@ import configparser
 import contextlib
 import copy
 import itertools
+import re
 import os
 import struct
 import time
@@ -37,6 +38,10 @@ NANOTEC = EDS / 'CL3-E-2-0F.eds'
 SLAVE = EDS / 'cia402_slave.eds'
 FAULHABER = EDS / '605.3150.69-B-EK-2-60.eds'
 MODULE = ROOT / 'config' / 'analog_input_module.eds'
+EPOS4 = EDS / 'maxon_epos4_node4.dcf'
+EPOS2 = EDS / 'maxon_epos2_347717.eds'
+ELMO = EDS / 'elmo_cob.dcf'
+ROBOTEQ = EDS / 'roboteq_v80_21a.eds'
 BASE = load_device_config(ROOT / 'config' / 'lumbar_brace.yaml')
 MECH = mechanism_from_config(BASE)
 _ids = itertools.count()
@@ -95,6 +100,9 @@ PLANNED = {
     'nanotec': dict(eds=str(NANOTEC), load_cell_object='0x3220:1'),
     'cia402_slave + CiA 401 module': dict(eds=str(SLAVE), load_cell_node={'node_id': 10, 'eds': str(MODULE)}),
     'our own drive': dict(eds='lumbar_drive.eds'),
+    'maxon EPOS4 (a DCF)': dict(eds=str(EPOS4), load_cell_object='0x3160:1'),
+    'maxon EPOS2': dict(eds=str(EPOS2), load_cell_object='0x207C:1'),
+    'Elmo Gold (a DCF)': dict(eds=str(ELMO), load_cell_object='0x2205:1'),
 }
 
 
@@ -805,3 +813,132 @@ def test_a_drive_whose_file_leaves_its_device_type_at_0_answers_as_a_cia_402_ser
     with caplog.at_level('WARNING'), _rigged(cfg) as (sim, master):
         master.boot()
     assert 'not a CiA 402 drive' not in caplog.text, caplog.text
+
+
+# ------------------------------------------------------------------ drives of a sweep (session 14)
+
+def _file_entry(path: Path, index: int, sub: int) -> dict[str, str]:
+    """The keys of ``index``:``sub`` as the file writes them (read here with configparser, not by
+    the code under test): its ``[60C2sub1]`` section (any case), for sub-index 0 of a variable
+    its ``[6060]`` section; lower-cased keys."""
+    cp = configparser.RawConfigParser(inline_comment_prefixes=(';',), strict=False)
+    cp.read_string(path.read_bytes().decode('utf-8-sig', errors='replace'))
+    sections = {name.lower(): name for name in cp.sections()}
+    for name in [f'{index:04x}sub{sub:x}'] + ([f'{index:04x}'] if sub == 0 else []):
+        if name in sections:
+            return {k.lower(): v.strip() for k, v in cp.items(sections[name])}
+    return {}
+
+
+def _number(text: str) -> int:
+    return int(text, 0) if text else 0
+
+
+@pytest.mark.parametrize('case', sorted(PLANNED))
+def test_a_unit_code_is_written_only_as_the_files_limits_encode_it(case):
+    """60A8h / 60A9h (CiA 402 SI unit codes): where the file's LowLimit and HighLimit agree in
+    bits 8..23 (the unit and its time base; maxon's EPOS4: 60A9h 00B44700h..FFB44700h, rpm with
+    a prefix), a written code keeps those bits; a numeric range check alone let 00B50300h
+    (increments per second) through, which the drive aborts and its boot with it."""
+    cfg = config(**PLANNED[case])
+    for plan in master_for(cfg).plan():
+        for w in plan.writes:
+            if w.index not in (0x60A8, 0x60A9):
+                continue
+            entry = _file_entry(Path(plan.dictionary.path), w.index, 0)
+            low, high = _number(entry.get('lowlimit', '')), _number(entry.get('highlimit', ''))
+            if entry.get('lowlimit') and entry.get('highlimit') and (low & 0xFFFF00) == (high & 0xFFFF00):
+                assert w.value & 0xFFFF00 == low & 0xFFFF00, (case, f'{w.index:04X}h', f'{w.value:08X}h')
+
+
+def test_maxon_epos4_keeps_its_rpm_and_boots_without_feed_forward_saying_why():
+    """The EPOS4's 60A9h can only change its prefix: the plan leaves it (no write), drops the
+    velocity feed-forward (an offset in counts/s read as rpm would run away), and its warning
+    names the file's limits."""
+    plan = master_for(config(**PLANNED['maxon EPOS4 (a DCF)'])).plan()[0]
+    assert not any(w.index == 0x60A9 for w in plan.writes)
+    assert not plan.feedforward
+    assert not any(w.subindex and w.value >> 16 == 0x60B1 for w in plan.mapping)
+    assert any('60A9h' in w and '00B44700h..FFB44700h' in w for w in plan.warnings), plan.warnings
+
+
+@pytest.mark.parametrize('case', sorted(PLANNED))
+def test_the_interpolation_period_is_written_whole_or_not_at_all(case):
+    """60C2h:1 (value) and :2 (10^index s) are one period: a plan writes both, or one whose
+    other sub-index the file has read-only at the value wanted, or neither. maxon's EPOS2
+    allows only 1 in 60C2h:1; its 60C2h:2 = -3 alone told the drive 1 ms against a 2 ms SYNC."""
+    for plan in master_for(config(**PLANNED[case])).plan():
+        subs = {w.subindex: w.value for w in plan.writes if w.index == 0x60C2}
+        if len(subs) == 1:
+            (written, _), = subs.items()
+            other = _file_entry(Path(plan.dictionary.path), 0x60C2, 3 - written)
+            assert other.get('accesstype', '').lower() in ('ro', 'const'), (case, subs, other)
+        if subs:
+            period = subs.get(1, 0) * 10.0 ** subs.get(2, 0) if len(subs) == 2 else None
+            assert period is None or period == pytest.approx(1.0 / BASE['can']['sync_rate_hz']), (case, subs)
+
+
+def test_epos2_leaves_its_interpolation_period_and_says_so():
+    plan = master_for(config(**PLANNED['maxon EPOS2'])).plan()[0]
+    assert not any(w.index == 0x60C2 for w in plan.writes)
+    assert any('60C2h' in n and 'not written' in n for n in plan.notes), plan.notes
+
+
+def test_a_load_cell_named_by_its_record_is_refused_naming_the_inputs_in_it():
+    """``can.load_cell_object: "0x2205"`` on an Elmo Gold: 2205h is a record whose sub-index 0
+    counts its entries. The refusal names the key the user set and the inputs to choose from
+    (2205h:1, 2205h:2 as the file names them), not a PDO mapping the YAML never set."""
+    with pytest.raises(DictionaryError) as err:
+        master_for(config(eds=str(ELMO), load_cell_object='0x2205')).plan()
+    text = str(err.value)
+    assert 'can.load_cell_object' in text and '"0x2205:1"' in text, text
+    names = [_file_entry(ELMO, 0x2205, sub).get('parametername') for sub in (1, 2)]
+    assert all(n and n in text for n in names), (names, text)
+    assert 'can.tpdo' not in text, text
+
+
+def test_a_mapping_longer_than_the_drive_s_pdo_is_refused_as_too_long_not_as_read_only():
+    """Roboteq's RoboMC (v8.0): each TPDO mapping lists 2 entries, all read-write. The refusal
+    says the drive maps at most 2; it does not call the mapping fixed or read-only (which the
+    file, read here, does not say)."""
+    assert all(_file_entry(ROBOTEQ, 0x1A00, sub).get('accesstype', '').lower() == 'rw' for sub in (0, 1, 2))
+    with pytest.raises(DictionaryError) as err:
+        master_for(config(eds=str(ROBOTEQ), load_cell_object='0x2146:1', homing_method=0)).plan()
+    text = str(err.value)
+    assert 'maps at most 2' in text, text
+    assert 'read-only' not in text and 'fixed' not in text, text
+
+
+@pytest.mark.parametrize('flaw', ['comments lines', 'empty revision number', 'a key twice'])
+def test_a_file_with_a_format_flaw_that_describes_no_object_plans_as_the_clean_file_does(tmp_path, flaw):
+    """Vendors' files that canopen's strict reader refuses whole, for flaws outside every
+    object: a [Comments] section whose Lines is not its LineN count, an empty RevisionNumber,
+    a key given twice. Read leniently, the boot is planned as the clean file's is (the
+    oracle: the clean file's plan, read strictly), with a warning naming the flaw."""
+    text = SLAVE.read_text(encoding='utf-8')
+    if flaw == 'comments lines':
+        text = text.replace('[Comments]\nLines=0\n', '[Comments]\nLines=2\nLine1=made by a tool\n', 1)
+    elif flaw == 'empty revision number':
+        text = re.sub(r'(?m)^(VendorNumber=.*\n)', r'\1RevisionNumber=\n', text, count=1)
+    else:
+        text = re.sub(r'(?m)^(\[1018\]\s*\n)', r'\1ParameterName=Identity\n', text, count=1)
+    flawed = tmp_path / 'flawed_cia402_slave.eds'
+    flawed.write_text(text, encoding='utf-8')
+    with pytest.raises(Exception):                              # the strict reader refuses it
+        canopen.import_od(str(flawed), 1)
+    cell = {'load_cell_node': {'node_id': 10, 'eds': str(MODULE)}}
+    clean = master_for(config(eds=str(SLAVE), **cell)).plan()[0]
+    plan = master_for(config(eds=str(flawed), **cell)).plan()[0]
+    assert plan.writes == clean.writes and plan.mapping == clean.mapping
+    assert any('not a well-formed EDS/DCF' in w for w in plan.warnings), plan.warnings
+
+
+def test_a_file_in_compact_pdo_storage_is_refused_saying_so(tmp_path):
+    """CiA 306 compact PDO storage (``CompactPDO`` in [DeviceInfo], the PDOs' communication and
+    mapping objects left out): the refusal says the file declares its PDOs that way and how to
+    expand them, not that the drive has none."""
+    eds = edited_eds(tmp_path, NANOTEC, drop=('14', '15', '16', '17', '18', '19', '1A', '1B'),
+                     set_={('DeviceInfo', 'CompactPDO'): '0x3F'})
+    with pytest.raises(DictionaryError) as err:
+        master_for(config(eds=str(eds), load_cell_object='0x3220:1')).plan()
+    assert 'CompactPDO' in str(err.value), str(err.value)

@@ -180,6 +180,35 @@ def _source(path: Path) -> tuple[str | io.StringIO, str | None]:
     return source, text
 
 
+_DEVICE_INFO_NUMBERS = ('vendornumber', 'productnumber', 'revisionnumber', 'nrofrxpdo', 'nroftxpdo',
+                        'simplebootupmaster', 'simplebootupslave', 'granularity', 'lss_supported',
+                        'dynamicchannelssupported', 'groupmessaging', 'baudrate_')
+
+
+def _lenient(text: str) -> str | None:
+    """The file as ``canopen``'s strict reader takes it, where vendors' files trip it without an
+    object being wrong: a section or key given twice (the last one counts, as in the vendors'
+    tools), a [Comments] section whose ``Lines`` is not its ``LineN`` entries, a number in
+    [DeviceInfo] left empty. ``None``: not even a lenient read parses it."""
+    parser = configparser.RawConfigParser(inline_comment_prefixes=(';',), strict=False)
+    parser.optionxform = str
+    try:
+        parser.read_string(text)
+    except configparser.Error:
+        return None
+    parser.remove_section('Comments')
+    if parser.has_section('DeviceInfo'):
+        for key, value in list(parser.items('DeviceInfo')):
+            if key.lower().startswith(_DEVICE_INFO_NUMBERS):
+                try:
+                    int(value, 0)
+                except ValueError:
+                    parser.remove_option('DeviceInfo', key)
+    out = io.StringIO()
+    parser.write(out, space_around_delimiters=False)
+    return out.getvalue()
+
+
 def _expand_compact_arrays(od: canopen.ObjectDictionary, text: str) -> None:
     """CiA 306 compact storage (``CompactSubObj=n`` in an array's section, no sub-index
     sections): ``canopen`` keeps only sub-index 1 as a template. Add sub-indices 2..n made from
@@ -221,9 +250,22 @@ class Dictionary:
         self.path = Path(path)
         if not self.path.is_file():
             raise DictionaryReadError(f'EDS/DCF {str(self.path)!r} does not exist')
+        self.repaired = ''
         try:
             source, text = _source(self.path)
-            self.od = canopen.import_od(source, node_id)
+            try:
+                self.od = canopen.import_od(source, node_id)
+            except (configparser.Error, ValueError) as exc:
+                lenient = _lenient(text) if text is not None else None
+                if lenient is None or lenient == text:
+                    raise
+                retry = io.StringIO(lenient)
+                retry.name = str(self.path)
+                try:
+                    self.od = canopen.import_od(retry, node_id)
+                except Exception:  # noqa: BLE001 - the original error is the one to name
+                    raise exc from None
+                self.repaired = f'{type(exc).__name__}: {exc}'
             if text is not None and 'compactsubobj' in text.lower():
                 _expand_compact_arrays(self.od, text)
         except Exception as exc:  # noqa: BLE001 - configparser, UnicodeDecodeError, KeyError ...

@@ -307,13 +307,20 @@ def _layout(p: _Planner, spec: PdoSpec, node_id: int, roles: Mapping[ObjectRef, 
     if spec.number not in available:
         have = f'{spec.direction.upper()}s {", ".join(map(str, available))}' if available \
             else f'no {spec.direction.upper()}'
+        declared = getattr(d.od.device_information,
+                           'nr_of_RXPDO' if spec.direction == 'rpdo' else 'nr_of_TXPDO', None)
+        if not available and declared:
+            have = (f'{declared} {spec.direction.upper()}s by [DeviceInfo] but the file lists none of '
+                    'their communication / mapping objects (compact PDO storage, CompactPDO): expand '
+                    'them with the vendor\'s EDS tool or a DCF')
         p.missing.append(f'{spec.direction.upper()}{spec.number} ({where}): the drive has {have}')
         return None
     capacity = d.mapping_capacity(spec.direction, spec.number)
+    entries, ok = [], True
     if len(spec.mapping) > capacity:
         p.missing.append(f'{where}: {len(spec.mapping)} entries, the drive\'s '
                          f'{spec.direction.upper()}{spec.number} maps at most {capacity}')
-    entries, ok = [], True
+        ok = False      # not also "fixed (read-only)": the entries beyond are absent, not read-only
     for ref in spec.mapping:
         v = d.var(ref)
         if v is None:
@@ -470,6 +477,17 @@ def _unit_text(code: int, *, time: bool) -> str:
     return text if exp == 0 else f'10^{exp} {text}'
 
 
+def _unit_allowed(v: Any, value: int) -> bool:
+    """Whether a unit code (60A8h / 60A9h) is one the file's LowLimit..HighLimit encode: limits
+    that agree in bits 8..23 (unit and time base) fix them, only the prefix (bits 24..31) varies
+    (maxon EPOS4: 60A9h 00B44700h..FFB44700h, rpm with a prefix). A numeric range check alone
+    lets 00B50300h through, which the drive aborts."""
+    if v is None or v.min is None or v.max is None:
+        return True
+    unit = 0x00FFFF00
+    return (int(v.min) & unit) != (int(v.max) & unit) or (value & unit) == (int(v.min) & unit)
+
+
 def _drive_units(p: '_Planner', counts_per_rev: int | None = None) -> str | None:
     """Match the drive's units (60A8h SI unit position, 60A9h SI unit velocity, as the
     dictionary says it starts) to the master's: positions in encoder increments, velocities in
@@ -512,7 +530,11 @@ def _drive_units(p: '_Planner', counts_per_rev: int | None = None) -> str | None
            'not position units per second')
     if isinstance(pos, int):
         value = (pos & 0xFFFF0000) | 0x0300
-        if p.optional(ObjectRef(0x60A9), value,
+        if not _unit_allowed(d.var(ObjectRef(0x60A9)), value):
+            v = d.var(ObjectRef(0x60A9))
+            why += (f'; 60A9h cannot be {value:08X}h: its limits {v.min:08X}h..{v.max:08X}h in the '
+                    'dictionary fix the unit and the time base (only the prefix may change)')
+        elif p.optional(ObjectRef(0x60A9), value,
                       f'SI unit velocity = {_unit_text(value, time=True)} (the position unit per second; '
                       f'the dictionary starts at {vel:08X}h, {_unit_text(vel, time=True)})',
                       'velocities stay in the drive\'s unit'):
@@ -534,6 +556,10 @@ def plan_drive(d: Dictionary, s: BootSettings) -> BootPlan:
     """
     who = f'{s.name} (node {s.node_id}, {d.product})'
     p = _Planner(d, who)
+    if d.repaired:
+        p.warnings.append(f'{d.path.name} is not a well-formed EDS/DCF ({d.repaired}); read leniently '
+                          '(a key given twice: its last value; [Comments] and empty [DeviceInfo] '
+                          'numbers left out): check the objects against the drive\'s manual')
     # ---- required
     for ref, what, write in ((ObjectRef(0x6040), 'controlword', True), (ObjectRef(0x6041), 'statusword', False),
                              (ObjectRef(0x6060), 'modes of operation', True),
@@ -550,6 +576,13 @@ def plan_drive(d: Dictionary, s: BootSettings) -> BootPlan:
                              'to the object the load cell is wired to'
                              + (f' (analog inputs in this dictionary: {", ".join(found)})' if found
                                 else ' or carry the load cells on a CiA 401 module (can.load_cell_node)'))
+        elif d.compound(s.load_cell):
+            obj = d.od[s.load_cell.index]
+            subs = ', '.join(f'{s.load_cell.index:04X}h:{k} {obj.subindices[k].name!r}'
+                             for k in sorted(obj.subindices)[1:4])
+            p.missing.append(f'{s.load_cell} (the load cell, can.load_cell_object) is sub-index 0 (the '
+                             f'entry count) of {s.load_cell.index:04X}h {obj.name!r}: name the input, '
+                             f'e.g. "0x{s.load_cell.index:04X}:1" ({subs})')
         else:
             load_type = v.data_type
             if v.data_type not in STRUCT_CODES:
@@ -585,10 +618,7 @@ def plan_drive(d: Dictionary, s: BootSettings) -> BootPlan:
                'stop accept SWITCH ON DISABLED)', alternatives=(5, 2, 1))
     p.optional(ObjectRef(0x6065), s.following_error_counts, 'following error window (counts)',
                "the master's own following-error check (safety.path_tolerance) supervises tracking")
-    p.optional(ObjectRef(0x60C2, 1), s.interpolation[0], 'interpolation time period value',
-               'the drive interpolates each target over its own period')
-    p.optional(ObjectRef(0x60C2, 2), s.interpolation[1], 'interpolation time index (10^index s)',
-               'the drive interpolates each target over its own period')
+    _plan_interpolation(p, s.interpolation)
     p.optional(ObjectRef(0x1006), s.period_us, 'communication cycle period (us)',
                'the drive times the SYNC interval itself')
     for ref, value, what in ((ObjectRef(0x607F), s.velocity_counts, 'max profile velocity'),
@@ -643,6 +673,32 @@ def plan_drive(d: Dictionary, s: BootSettings) -> BootPlan:
                + _mapping_writes(d, [feedback], 'tpdo', s.node_id))
     return BootPlan(s.name, s.node_id, d, p.writes, mapping, tuple(rpdos), feedback, feedforward,
                     home_on_drive, soft_limits, heartbeat, load_type, p.notes, p.warnings)
+
+
+def _plan_interpolation(p: _Planner, period: tuple[int, int]) -> None:
+    """60C2h:1 (value) and :2 (index, 10^index s) as one setting: both written (or a read-only
+    one already at the value wanted), or neither; one alone gives the drive a period that is
+    neither the SYNC's nor its own."""
+    d, writes, why = p.d, [], ''
+    for sub, value in ((1, period[0]), (2, period[1])):
+        ref = ObjectRef(0x60C2, sub)
+        v = d.var(ref)
+        if v is not None and not v.writable and d.default(ref) == value:
+            continue
+        try:
+            if v is None or not v.writable or v.data_type not in STRUCT_CODES:
+                raise ValueError(f'{ref} is {"absent" if v is None else v.access_type}')
+            d.encode(ref, value)
+        except ValueError as exc:
+            why = str(exc)
+            break
+        writes.append(SdoWrite(0x60C2, sub, STRUCT_CODES[v.data_type], value,
+                               'interpolation time ' + ('period value' if sub == 1 else 'index (10^index s)')))
+    if why:
+        p.notes.append(f'60C2h interpolation time period {period[0]} x 10^{period[1]} s: not written '
+                       f'({why}); the drive interpolates each target over its own period')
+    else:
+        p.writes += writes
 
 
 #: the optional objects the boot writes where they exist
@@ -738,7 +794,7 @@ def _plan_pdos(p: _Planner, s: BootSettings,
     tspecs = dict(s.tpdo) if s.tpdo else None
     if tspecs is None:
         entries = [ObjectRef(0x6041), ObjectRef(0x6064)]
-        if s.load_cell is not None and d.exists(s.load_cell):
+        if s.load_cell is not None and d.exists(s.load_cell) and not d.compound(s.load_cell):
             entries.append(s.load_cell)
         tspecs = {1: PdoSpec('tpdo', 1, tuple(entries))}
     tpdo_roles = dict(TPDO_ROLES)
@@ -758,7 +814,7 @@ def _plan_pdos(p: _Planner, s: BootSettings,
             feedback = lay
             break
     needed = ['statusword', 'position'] + (['load'] if s.load_cell is not None and d.exists(s.load_cell)
-                                           else [])
+                                           and not d.compound(s.load_cell) else [])
     if feedback is None:
         if not p.missing:
             p.missing.append('6041h (statusword) is in no TPDO of can.tpdo')
