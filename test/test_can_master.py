@@ -431,6 +431,47 @@ def test_a_receive_thread_behind_is_not_a_lost_heartbeat(rig):
         sim.faults.silence_heartbeat(2, False)
 
 
+def test_time_this_process_did_not_run_does_not_age_a_heartbeat():
+    """docs/safety.md §4: a heartbeat's age leaves out the time this process stood still (the
+    SYNC thread woke that late, :meth:`Receiver.host_stalled`): the simulated drives stood
+    still with it. A heartbeat heard 1.6 s before a TPDO that just arrived, 1.5 s of which the
+    process did not run, is 0.1 s old; one heard after the stall counts in full. Oracle: the
+    stamps set here."""
+    from brace_control.can.state import _Node
+    master = BraceMaster.from_device_config(CFG, channel='unused')
+    receiver = master.receiver
+    d = _Node(name='a2', node_id=2, node=None)
+    now = time.time()
+    d.hb_wall, d.hb_stalled = now - 1.6, receiver.stalled_s
+    receiver.host_stalled(1.5)
+    receiver.rx_wall = now
+    assert receiver.heartbeat_age(d) == pytest.approx(0.1, abs=1e-6)
+    receiver.host_stalled(-0.5)                          # an early wake is no stall
+    assert receiver.heartbeat_age(d) == pytest.approx(0.1, abs=1e-6)
+    d.hb_wall, d.hb_stalled = now - 0.3, receiver.stalled_s
+    assert receiver.heartbeat_age(d) == pytest.approx(0.3, abs=1e-6)
+
+
+def test_a_stall_of_the_whole_process_is_not_a_lost_heartbeat(rig):
+    """Master and simulated drives in this process, held together for 1.5 s (a native call
+    keeps the interpreter lock, as a host that did not run the process would): the world
+    stood still, so no drive's heartbeat was late, and the brace stays enabled. A drive that
+    falls silent afterwards is still caught within its consumer time."""
+    import ctypes
+    sim, master = rig
+    wait_for(lambda: master.status().drives[1].heartbeat_age < 0.06, 1.0, 'a heartbeat')
+    ctypes.PyDLL(None).usleep(1_500_000)
+    time.sleep(0.5)                                      # every drive's heartbeat came since
+    assert not master.supervisor.latched, master.supervisor.summary()
+    t0 = time.monotonic()
+    sim.faults.silence_heartbeat(2)
+    try:
+        wait_for(_latched(master, FaultKind.HEARTBEAT_LOST, 'a2'), OBSERVE_S, 'heartbeat fault')
+        assert _fault_after(master, {FaultKind.HEARTBEAT_LOST}, t0) <= 0.15 + SLACK
+    finally:
+        sim.faults.silence_heartbeat(2, False)
+
+
 # docs/safety.md §4
 def test_fault_emcy_with_drive_fault(rig):
     """Bound: the EMCY frame itself (≤ 1 period) + slack."""

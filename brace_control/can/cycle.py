@@ -178,6 +178,7 @@ class Cycle:
             # this process did not run for a while: frames queued meanwhile are not yet
             # received; give the receive thread a moment before judging silence by time
             self._monitors.grace_until = time.monotonic() + max(0.02, 10 * self._config.period)
+            self._monitors.host_stalled(t_wake - self._last_wake - self._config.period)
         self._last_wake = t_wake
         if life.supervising:
             self._monitors.run()

@@ -100,6 +100,11 @@ class Monitors:
         #: monotonic: silence is not judged by the clock until then (after a host stall)
         self.grace_until = 0.0
 
+    def host_stalled(self, seconds: float) -> None:
+        """The SYNC thread woke ``seconds`` later than its period: this process did not run
+        (:meth:`.receive.Receiver.host_stalled`; heartbeat ages leave it out)."""
+        self._receiver.host_stalled(seconds)
+
     # ------------------------------------------------------------------ "cause still present" predicates
 
     def heartbeat_missing(self, d: _Node) -> Callable[[], bool]:

@@ -110,6 +110,9 @@ class Receiver:
         self.tpdo_total = 0
         #: bus timestamp (wall clock) of the newest frame received from a drive
         self.rx_wall = -math.inf
+        #: s this process did not run, summed over the stalls its SYNC thread saw
+        #: (:meth:`host_stalled`): no heartbeat age counts them
+        self.stalled_s = 0.0
         #: all drives silent for this many SYNCs -> stale (one silent drive: stale_periods).
         #: From the master alone, "every drive silent" cannot be told from "this process
         #: did not get to receive", so the bound is the drives' own consumer time of our
@@ -212,9 +215,23 @@ class Receiver:
         than the consumer time or the all-silent bound (:attr:`all_silent_periods`, the
         drives' own consumer time of our heartbeat), whichever is longer (the bus, the
         wiring, or a host too starved to receive), it is the time since the heartbeat by
-        the wall clock."""
-        return heartbeat_age(d.hb_wall, self.rx_wall, time.time(), consumer_time=self.heartbeat_timeout,
-                             all_silent=self.all_silent_periods * self.config.period)
+        the wall clock.
+
+        Either way, the time this process did not run since that heartbeat (:meth:`host_stalled`)
+        does not count: a simulated bus stood still with it (its drives live in this process),
+        and on a real one the heartbeats of meanwhile arrive afterwards with their own
+        timestamps (each then counts from its own). A 1.5 s stop of the control cycle's process
+        read as a drive's heartbeat lost for 1.5 s, once the first TPDO after it arrived before
+        that drive's next heartbeat (fresh-clone run 1402)."""
+        age = heartbeat_age(d.hb_wall, self.rx_wall, time.time(), consumer_time=self.heartbeat_timeout,
+                            all_silent=self.all_silent_periods * self.config.period)
+        return max(0.0, age - (self.stalled_s - d.hb_stalled))
+
+    def host_stalled(self, seconds: float) -> None:
+        """This process did not run for ``seconds`` (its SYNC thread woke that late): no
+        heartbeat heard before counts them (:meth:`heartbeat_age`)."""
+        if seconds > 0.0:
+            self.stalled_s += seconds
 
     def heartbeat_callback(self, d: _Node) -> Callable[[int, bytearray, float], None]:
         def on_heartbeat(can_id: int, data: bytearray, timestamp: float) -> None:
@@ -223,6 +240,7 @@ class Receiver:
             state = data[0] & 0x7F
             d.hb_time = time.monotonic()
             d.hb_wall = self.bus_time(timestamp)
+            d.hb_stalled = self.stalled_s
             d.nmt = NmtState.PRE_OPERATIONAL if state == NmtState.BOOTUP else state
             if state == NmtState.BOOTUP and self._supervising():
                 # a drive rebooted: configuration and homing are gone

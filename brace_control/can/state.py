@@ -325,6 +325,7 @@ class _Node:
     rx_total: int = 0                      # master's TPDO count at this node's last TPDO
     hb_time: float = -math.inf             # monotonic of the last heartbeat / boot-up
     hb_wall: float = -math.inf             # its bus timestamp (wall clock; see Receiver.bus_time)
+    hb_stalled: float = 0.0                # Receiver.stalled_s when it was received
     nmt: int | None = None
     booted: threading.Event = field(default_factory=threading.Event)
     emcy: tuple[int, int, float] | None = None     # code, register, monotonic
