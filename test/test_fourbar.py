@@ -469,3 +469,16 @@ def test_report_runs_and_writes_pngs(tmp_path, capsys):
     for name in ('fourbar_straight_line.png', 'fourbar_curved.png', 'fourbar_springs.png'):
         assert (tmp_path / name).stat().st_size > 10_000
     assert report.main(['config/lumbar_brace.yaml', '--no-plots']) == 2
+
+
+def test_the_crank_range_seam_has_one_representative(trainer, cfg):
+    """The crank range is exactly one turn (the YAML's crank_range, -50 deg .. 310 deg): the
+    curve point at its lower end is the same crank angle, the range's own lower end, for
+    ``inverse`` and ``inverse_batch`` (a rounding below it wrapped to +310 deg in one of them,
+    the other kept -50 deg), and so is a point a hair inside the range."""
+    lo, hi = (float(x) for x in cfg['mechanism']['crank_range'])
+    assert hi - lo == pytest.approx(2 * math.pi)
+    for q in (lo, lo + 1e-9, lo + 1e-3):
+        p = trainer.forward_branch(q)
+        single, batch = float(trainer.inverse(p)[0]), float(trainer.inverse_batch(p[None])[0, 0])
+        assert single == pytest.approx(q, abs=1e-7) and batch == pytest.approx(q, abs=1e-7), (q, single, batch)

@@ -235,3 +235,83 @@ def test_a_motion_with_no_driver_listening_is_rejected_not_lost(ros):
     values = status_values(events[0])
     assert events[0].message == 'rejected' and values['stamp'] == str(9_500_000_000)
     assert topics.ACTUATOR_TRAJECTORY in values['reason'] and 'can_driver_node' in values['reason']
+
+
+# ------------------------------------------------------------------ a cable brace's workspace
+NECK4 = load_device_config(LUMBAR_YAML.parent / 'neck_brace_4rpr.yaml')
+
+
+def _cable_null_direction(pose) -> np.ndarray:
+    """The 4-RPR's self-stress: tensions ``t`` with ``sum_n t_n (u_n; b_n x u_n) = 0`` (no
+    wrench on the ring), from the YAML geometry written out (report "FOUR RPR": cable n from
+    the ring's anchor ``B_n`` to the base's ``A_n``). Unloaded cables can hold the pose only
+    when this direction has one sign (every cable pulls); the test's own statics, not the
+    code's."""
+    m = NECK4['mechanism']
+    A = np.asarray(m['base_anchors'], float).reshape(4, 2)
+    r, d = float(m['platform_radius']), np.asarray(m['anchor_angles'], float)
+    x, y, psi = pose
+    b = np.column_stack([r * np.cos(d + psi), r * np.sin(d + psi)])
+    u = A - (np.array([x, y]) + b)
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    W = np.vstack([u[:, 0], u[:, 1], b[:, 0] * u[:, 1] - b[:, 1] * u[:, 0]])   # 3 x 4
+    return np.linalg.svd(W)[2][-1]
+
+
+# docs/safety.md §10
+def test_a_cable_brace_setpoint_its_cables_cannot_hold_is_rejected_naming_them(ros):
+    """The cable-driven 4-RPR neck brace at 40 deg of rotation: within the stroke and far from
+    a singularity, but the ring can only be held there with a cable pushing (its self-stress
+    has mixed signs). The trajectory planner refuses such a pose; a setpoint of it is refused
+    as well, its reason naming the cables, and nothing is published. A pose whose self-stress
+    has one sign passes, with the cable lengths of the YAML geometry."""
+    from rpr_oracles import cable_lengths_4rpr
+    bad, good = [0.0, 0.0, 0.7], [0.0, 0.0, 0.1]
+    n_bad, n_good = _cable_null_direction(bad), _cable_null_direction(good)
+    assert np.min(n_bad) < 0 < np.max(n_bad), n_bad                # a cable would push
+    assert np.all(n_good > 0) or np.all(n_good < 0), n_good
+    ik = ros.device_node(IkNode, LUMBAR_YAML.parent / 'neck_brace_4rpr.yaml')
+    test = ros.node('ik_cable_test')
+    out = ros.collect(test, JointState, '/brace/actuator_setpoint')
+    diags = ros.collect(test, DiagnosticArray, '/diagnostics')
+    pub = test.create_publisher(PoseStamped, '/brace/pose_setpoint', RELIABLE_10)
+    ros.wait_matched(pub)
+    ros.spin_until(lambda: ik._pub.get_subscription_count() >= 1, what='ik -> test match')
+    pub.publish(setpoint(bad, t=5.0))
+    ros.spin_until(lambda: any('cables cannot hold' in s.message for a in diags for s in a.status),
+                   what='the rejection naming the cables')
+    pub.publish(setpoint(good, t=5.1))
+    ros.spin_until(lambda: len(out) == 1, what='the next valid setpoint')
+    assert stamp_to_ns(out[0].header.stamp) == 5_100_000_000          # the bad one never went out
+    np.testing.assert_allclose(out[0].position, cable_lengths_4rpr(NECK4, good), atol=1e-12)
+
+
+def test_a_cable_brace_pose_trajectory_through_a_pose_its_cables_cannot_hold_is_rejected(ros):
+    """A pose trajectory published straight to ik_node, rotating the cable brace's ring from
+    0.1 to 0.7 rad: the knots beyond the cables' reach (the test's own statics) make it a
+    rejection with its stamp and the cables named; no actuator trajectory goes out."""
+    from diagnostic_msgs.msg import DiagnosticStatus
+    from trajectory_msgs.msg import JointTrajectory, MultiDOFJointTrajectory
+
+    from brace_control.nodes import topics
+    from brace_control.nodes.msgs import pose_trajectory_msg, status_values
+    t = np.linspace(0.0, 1.0, 11)
+    P = np.array([[0.0, 0.0, 0.1 + 0.6 * s] for s in t])
+    mixed = [bool(np.min(n) < 0 < np.max(n)) for n in map(_cable_null_direction, P)]
+    assert mixed[-1] and not mixed[0], mixed
+    ik = ros.device_node(IkNode, LUMBAR_YAML.parent / 'neck_brace_4rpr.yaml')
+    test = ros.node('ik_cable_motion_test')
+    out = ros.collect(test, JointTrajectory, topics.ACTUATOR_TRAJECTORY, topics.TRAJECTORY_QOS)
+    events = ros.collect(test, DiagnosticStatus, topics.EXECUTION_STATUS, topics.STATUS_QOS)
+    pub = test.create_publisher(MultiDOFJointTrajectory, topics.POSE_TRAJECTORY, topics.TRAJECTORY_QOS)
+    ros.wait_matched(pub)
+    ros.spin_until(lambda: ik._traj_pub.get_subscription_count() >= 1
+                   and ik._status_pub.get_subscription_count() >= 1, what='ik -> test match')
+    pub.publish(pose_trajectory_msg(t, P, np.zeros_like(P), np.zeros_like(P), frame_id='brace_base',
+                                    joint_name='brace_platform', stamp=sec_to_stamp(9.0), kind='planar'))
+    ros.spin_until(lambda: len(events) == 1, what='the rejection')
+    values = status_values(events[0])
+    assert events[0].message == 'rejected' and values['stamp'] == str(9_000_000_000)
+    assert 'cables cannot hold' in values['reason'], values['reason']
+    ros.spin_for(0.1)
+    assert out == []

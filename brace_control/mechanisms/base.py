@@ -32,7 +32,7 @@ from .capacity import (capacity_closed_form, capacity_lp, capacity_one_redundanc
                        unsupported_axes)
 
 __all__ = [
-    'Mechanism', 'MechanismBase', 'UnreachablePose', 'SingularPose', 'Statics',
+    'Mechanism', 'MechanismBase', 'UnreachablePose', 'SingularPose', 'Statics', 'check_workspace', 'workspace_mask',
     'as_vector', 'as_poses', 'as_points', 'as_per_actuator', 'as_range', 'as_actuator_names', 'as_condition_max',
     'as_positive', 'as_force_limits',
     'condition_number', 'check_limits', 'within_limits', 'rot2',
@@ -66,6 +66,33 @@ class UnreachablePose(ValueError):
 
 class SingularPose(UnreachablePose):
     """A pose at (or too close to) a singularity: the Jacobian's condition number is too high."""
+
+
+def workspace_mask(mech: Any, poses: np.ndarray) -> np.ndarray:
+    """``mech.in_workspace`` of each row of ``poses`` (its ``in_workspace_batch`` where it has
+    one); all true for a mechanism without ``in_workspace``."""
+    P = np.asarray(poses, dtype=float)
+    batch = getattr(mech, 'in_workspace_batch', None)
+    if callable(batch):
+        return np.asarray(batch(P), dtype=bool)
+    inside = getattr(mech, 'in_workspace', None)
+    if not callable(inside):
+        return np.ones(len(P), dtype=bool)
+    return np.array([bool(inside(p)) for p in P], dtype=bool)
+
+
+def check_workspace(mech: Any, pose: Sequence[float]) -> None:
+    """Raise :class:`UnreachablePose` when ``mech.in_workspace(pose)`` is false, with the
+    mechanism's reason where it gives one (``workspace_reason``: a cable brace's tensions);
+    nothing for a mechanism without ``in_workspace``. What the trajectory planner refuses as
+    outside the workspace, the IK node refuses too (a setpoint, a pose trajectory)."""
+    inside = getattr(mech, 'in_workspace', None)
+    if not callable(inside) or inside(pose):
+        return
+    why = getattr(mech, 'workspace_reason', None)
+    reason = why(pose) if callable(why) else ''
+    text = ', '.join(f'{float(x):.4g}' for x in np.asarray(pose, dtype=float).ravel())
+    raise UnreachablePose(f'pose [{text}] is outside the workspace' + (f': {reason}' if reason else ''))
 
 
 @runtime_checkable

@@ -113,6 +113,15 @@ def table_3_1_lengths(stroke: float = 0.2525, ratio_stroke: float = 4.181, ratio
     return ratio_ground * l2, l2, ratio_coupler * l2
 
 
+def _wrap_from(lo: float, theta: Any) -> Any:
+    """``theta`` (rad, a number or an array) wrapped into ``[lo, lo + 2 pi)``. An angle that
+    rounding left within 1e-12 rad below ``lo + 2 pi`` is ``lo``: the crank range is exactly
+    one turn, and at its seam ``inverse`` and ``inverse_batch`` gave the same curve point two
+    representatives a turn apart (-50 deg and 310 deg for the trainer)."""
+    r = np.mod(np.asarray(theta, dtype=float) - lo, _TWO_PI)
+    return lo + np.where(_TWO_PI - r <= 1e-12, 0.0, r)
+
+
 def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Planar cross product of complex numbers ``u x v = Im(conj(u) v)``."""
     return (np.conj(u) * v).imag
@@ -358,7 +367,7 @@ class HoekenFourBar(MechanismBase):
 
     # ------------------------------------------------------------------ inverse
     def _wrap_q(self, theta: float) -> float:
-        return self._lo + (theta - self._lo) % _TWO_PI
+        return float(_wrap_from(self._lo, theta))
 
     def _curve_derivatives(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``P, dP/dtheta2, d2P/dtheta2^2`` (complex) on the configured branch."""
@@ -453,7 +462,7 @@ class HoekenFourBar(MechanismBase):
                 best_d = np.where(better, d, best_d)
             theta[start:start + chunk] = best_t
             dmin[start:start + chunk] = best_d
-        return self._lo + np.mod(theta - self._lo, _TWO_PI), dmin
+        return _wrap_from(self._lo, theta), dmin
 
     def nearest_on_curve(self, pose: Sequence[float]) -> tuple[float, float]:
         """``(theta2, distance)``: the crank angle (rad, wrapped into the crank range) of
@@ -595,7 +604,7 @@ class HoekenFourBar(MechanismBase):
         if project.any():
             th_p, d = self._nearest_on_curve_batch(target[project])
             theta[project] = np.where(d <= self.curve_tolerance, th_p, np.nan)
-        q = self._lo + np.mod(theta - self._lo, _TWO_PI)
+        q = _wrap_from(self._lo, theta)
         if limits:
             q = np.where(within_limits(q[:, None], np.array([self._lo]), np.array([self._hi])), q, np.nan)
         return q

@@ -290,6 +290,21 @@ class Rpr4(RprLegs, MechanismBase):
         return self._in_workspace(pose) and (self.actuation != 'cable'
                                              or self.distribute(pose, (0.0, 0.0, 0.0)).feasible)
 
+    def workspace_reason(self, pose: Sequence[float]) -> str:
+        """Why ``pose`` is outside the workspace (:meth:`in_workspace`; '' when it is not):
+        the stroke or the singularity (the message of :meth:`inverse` /
+        :meth:`check_singularity`), or cables that cannot hold it unloaded."""
+        try:
+            self.inverse(pose)
+            self.check_singularity(pose)
+        except UnreachablePose as exc:
+            return str(exc)
+        if self.actuation == 'cable':
+            d = self.distribute(pose, (0.0, 0.0, 0.0))
+            if not d.feasible:
+                return f'the cables cannot hold it unloaded: {d.reason}'
+        return ''
+
     # ------------------------------------------------------------------ redundancy resolution
     def _bounds(self, mode: str) -> tuple[float, float]:
         if mode == 'cable':

@@ -7,7 +7,7 @@ whole motion at once (:func:`~brace_control.trajectory.actuator.actuator_knots`:
 motion is within 1 um of the IK of the planned poses) and publishes
 ``/brace/actuator_trajectory`` (``trajectory_msgs/JointTrajectory``, same stamp). An empty
 trajectory (a stop) is passed on as an empty one. A motion it cannot convert (malformed, a
-pose without inverse kinematics) is reported on ``/brace/execution_status`` as
+pose without inverse kinematics, a knot outside the mechanism's workspace) is reported on ``/brace/execution_status`` as
 ``rejected`` with the reason and the trajectory's stamp; nothing is published.
 
 Teleoperation stream: subscribes ``/brace/pose_setpoint`` (``geometry_msgs/PoseStamped``,
@@ -16,7 +16,8 @@ entry per actuator of the YAML, ``position`` = IK, ``velocity`` = J · pose rate
 previous accepted setpoint, 0 for the first one or after a gap).
 
 A setpoint that is malformed (NaN/inf, wrong frame, a non-planar quaternion for a planar
-device) or unreachable (outside the stroke, singular) is rejected: a throttled warning,
+device) or unreachable (outside the stroke, singular, outside the workspace the planner
+keeps to: a cable brace's pose its cables cannot hold unloaded) is rejected: a throttled warning,
 a ``/diagnostics`` status with the reason, nothing published; the last valid setpoint
 stays in force downstream (docs/safety.md §6, §10). The output keeps the setpoint's stamp, so
 the driver's staleness check and the latency bench see when the pose was commanded.
@@ -35,6 +36,7 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, MultiDOFJointTrajectory
 
 from ..mechanisms import SingularPose, UnreachablePose, mechanism_from_config
+from ..mechanisms.base import check_workspace, workspace_mask
 from ..trajectory import KnotTrajectory, TrajectoryError, actuator_knots
 from . import topics
 from .diagnostics import ERROR, OK, WARN, NodeDiagnostics
@@ -114,6 +116,11 @@ class IkNode(Node):
                 self._traj_pub.publish(out)
                 return
             knots = actuator_knots(self.mechanism, KnotTrajectory(times, P, V, A))
+            outside = ~workspace_mask(self.mechanism, P)
+            if outside.any():               # what the planner refuses, refused here as well
+                i = int(np.argmax(outside))
+                check_workspace(self.mechanism, P[i])
+                raise UnreachablePose(f'knot {i} is outside the workspace')
         except (MalformedMessage, TrajectoryError, ValueError) as exc:
             self._reject_trajectory(tag, exc)
             return
@@ -152,6 +159,10 @@ class IkNode(Node):
             check = getattr(self.mechanism, 'check_singularity', None)
             if callable(check):
                 check(pose)
+            # the mechanism's whole workspace, as the planner checks it (a cable brace: the
+            # cables must hold the pose; a sweep of random setpoints found half of the
+            # 4-RPR's accepted ones needing a cable to push)
+            check_workspace(self.mechanism, pose)
             jac = self.mechanism.jacobian(pose)
         except (MalformedMessage, UnreachablePose, ValueError) as exc:
             self._reject(exc)

@@ -26,7 +26,7 @@ import numpy as np
 
 from ..config import as_device_config
 from ..schema import mechanism_default
-from ..mechanisms.base import SingularPose
+from ..mechanisms.base import SingularPose, UnreachablePose, check_workspace, workspace_mask
 from .actuator import UnreachableKnot, actuator_knots
 from .base import Trajectory, TrajectoryError
 from .knots import knots_of
@@ -176,8 +176,10 @@ def check_pose(mech: 'Mechanism', pose: np.ndarray, *, condition_max: float) -> 
     if not cond <= condition_max:
         return PathCheck(Violation.SINGULARITY,
                          f'pose {_fmt(pose)} is singular: cond(J) = {cond:.3g} > {condition_max:.3g}')
-    if not mech.in_workspace(pose):
-        return PathCheck(Violation.WORKSPACE, f'pose {_fmt(pose)} is outside the workspace')
+    try:
+        check_workspace(mech, pose)
+    except UnreachablePose as exc:
+        return PathCheck(Violation.WORKSPACE, str(exc))
     return PathCheck(q=q, jacobian=J)
 
 
@@ -189,13 +191,6 @@ def _first_unreachable(mech: 'Mechanism', pose: np.ndarray) -> PathCheck:
         kind = Violation.SINGULARITY if isinstance(exc, SingularPose) else Violation.STROKE
         return PathCheck(kind, f'pose {_fmt(pose)} is unreachable: {exc}')
     return PathCheck(Violation.STROKE, f'pose {_fmt(pose)} is unreachable')
-
-
-def _in_workspace(mech: 'Mechanism', P: np.ndarray) -> np.ndarray:
-    batch = getattr(mech, 'in_workspace_batch', None)
-    if callable(batch):
-        return np.asarray(batch(P), dtype=bool)
-    return np.array([bool(mech.in_workspace(p)) for p in P])
 
 
 def check_path(mech: 'Mechanism', trajectory: Trajectory, limits: Limits, *,
@@ -218,7 +213,7 @@ def check_path(mech: 'Mechanism', trajectory: Trajectory, limits: Limits, *,
     reachable = finite & np.all(np.isfinite(Q), axis=1)
     k = int(np.argmin(reachable)) if not np.all(reachable) else n    # first unreachable
     J = np.asarray(mech.jacobian_batch(P[:k]), dtype=float) if k else np.zeros((0, 1, 1))
-    outside = ~_in_workspace(mech, P[:k]) if k else np.zeros(0, dtype=bool)
+    outside = ~workspace_mask(mech, P[:k]) if k else np.zeros(0, dtype=bool)
     k_ws = int(np.argmax(outside)) if np.any(outside) else k         # first outside the workspace
     # singularities up to there (batched: one SVD / det call); a pose outside the
     # workspace because it is singular is reported as singular
