@@ -16,7 +16,14 @@ the messages divided by ``--rate``. The storage files are read directly and thei
 connections matched to ``metadata.yaml`` by topic name and type, so a bag whose metadata
 and storage spell the same QoS differently (``ros2 bag record`` wrote ``deadline sec: 0``
 in one and ``sec: 2147483647`` in the other) replays every message. A storage connection
-that ``metadata.yaml`` does not list is an error, never a silent omission.
+that ``metadata.yaml`` does not list is an error, never a silent omission. Message types
+are ``pkg/msg/Name`` (``pkg/Name`` in old bags), service events ``pkg/srv/Name_Event`` and
+action parts ``pkg/action/Name_Part``; a topic whose type this Python lacks and that holds
+no message (``/events/write_split`` of ``ros2 bag record -a``) is skipped with a warning,
+as rosbag2 does. A .db3 with a non-empty ``-wal`` beside it (a recording that did not close,
+rosbag2's "resilient" preset) is refused, saying how to merge it: a read-only open would miss
+its last messages. A storage file that cannot be read to its end stops the replay with the
+count published so far as a problem.
 
 Each topic is published with the QoS its publishers offered when it was recorded
 (:func:`recorded_qos`; ``--qos-profile-overrides-path`` overrides it per topic). A reliable
@@ -236,8 +243,28 @@ def open_bag(path: str | Path) -> Bag:
     return bag
 
 
+def _lenient_mcap_schemas() -> None:
+    """rosbags 0.11 refuses an mcap schema encoding it does not know ('unknown': rosbag2 writes
+    it for a service type without message fields); the replay never needs the definition."""
+    try:
+        from rosbags.rosbag2 import storage_mcap
+        strict = storage_mcap.get_msgdef
+    except (ImportError, AttributeError):       # another rosbags: its own reading stands
+        return
+    if getattr(strict, 'lenient', False):
+        return
+
+    def get_msgdef(schema):
+        if schema is not None and schema.encoding not in ('ros2msg', 'ros2idl', 'omgidl', ''):
+            schema = schema._replace(encoding='', data='')
+        return strict(schema)
+    get_msgdef.lenient = True
+    storage_mcap.get_msgdef = get_msgdef
+
+
 def _open_storage(bag: Bag, path: Path) -> Any:
     from rosbags.rosbag2 import Reader
+    _lenient_mcap_schemas()
     try:
         reader = Reader(path)
         reader.open()
@@ -246,6 +273,11 @@ def _open_storage(bag: Bag, path: Path) -> Any:
                        f'{exc}') from exc
     bag._stack.callback(reader.close)
     bag._readers.append(reader)
+    wal = path.with_name(path.name + '-wal')
+    if path.suffix == '.db3' and wal.is_file() and wal.stat().st_size:
+        raise BagError(f'{str(path)!r} has a non-empty {wal.name} (a recording that did not '
+                       'close): its last messages are not in the .db3 and would be missed; '
+                       f"merge them first: sqlite3 {path} 'PRAGMA wal_checkpoint(TRUNCATE)'")
     return reader
 
 
@@ -338,8 +370,13 @@ def _open_directory(bag: Bag) -> None:
                 tmp = Path(bag._stack.enter_context(tempfile.TemporaryDirectory(
                     prefix='brace-bag-')))
             plain = tmp / path.name.removesuffix('.zstd')
-            with path.open('rb') as src, _zstd().open(src, 'rb') as z, plain.open('wb') as dst:
-                shutil.copyfileobj(z, dst)
+            try:
+                with path.open('rb') as src, _zstd().open(src, 'rb') as z, \
+                        plain.open('wb') as dst:
+                    shutil.copyfileobj(z, dst)
+            except Exception as exc:  # noqa: BLE001 - zstd errors, OSError
+                raise BagError(f'{where}: compression_mode is file but {path.name!r} does not '
+                               f'decompress as zstd: {type(exc).__name__}: {exc}') from exc
             path = plain
         if path.suffix != _STORAGE_SUFFIX[bag.storage_id]:
             raise BagError(f'{where}: storage is {bag.storage_id} but file {path.name!r} is '
@@ -372,12 +409,18 @@ def message_class(msgtype: str, *, topic: str = '') -> type:
 
     :raises BagError: the type's package is not importable here.
     """
-    parts = msgtype.replace('/msg/', '/').split('/')
-    if len(parts) != 2:
+    parts = msgtype.split('/')
+    if len(parts) == 2:                      # 'pkg/Type' (Dashing) is 'pkg/msg/Type'
+        parts.insert(1, 'msg')
+    if len(parts) != 3 or parts[1] not in ('msg', 'srv', 'action'):
         raise BagError(f'message type {msgtype!r}{_on(topic)} is not a ROS 2 message type name')
-    pkg, name = parts
+    pkg, kind, name = parts
     try:
-        return getattr(importlib.import_module(f'{pkg}.msg'), name)
+        module = importlib.import_module(f'{pkg}.{kind}')
+        if kind == 'action' and not hasattr(module, name) and '_' in name:
+            action, _, part = name.rpartition('_')     # Fibonacci_FeedbackMessage
+            return getattr(getattr(module, action).Impl, part)
+        return getattr(module, name)                   # srv: SetBool_Event
     except (ImportError, AttributeError) as exc:
         raise BagError(
             f'message type {msgtype!r}{_on(topic)} is not available in this Python '
@@ -715,7 +758,14 @@ def replay(node: Any, path: str | Path, *, rate: float = 1.0,
             elif override is not None:
                 qos = qos_with_overrides(qos, override, topic=name)
             stats.qos[name] = qos
-            cls = message_class(t.msgtype, topic=name)
+            try:
+                cls = message_class(t.msgtype, topic=name)
+            except BagError:
+                if bag.stored_counts()[name]:
+                    raise
+                stats.warnings.append(f'{name}: no publisher: its type {t.msgtype} is not '
+                                      'available here and the bag holds no message of it')
+                continue
             pubs[name] = _Topic(name, node.create_publisher(cls, name, qos), qos)
             if not pubs[name].reliable:
                 stats.warnings.append(f'{name} is best effort (as recorded): its delivery '
@@ -737,7 +787,8 @@ def _wait_for_subscribers(bag: Bag, pubs: dict[str, _Topic], n: int,
                           stop: threading.Event | None) -> None:
     if n <= 0:
         return
-    names = [t for t in pubs if bag.topics[t].count] if wait_topics is None else list(wait_topics)
+    stored = bag.stored_counts()
+    names = [t for t in pubs if stored[t]] if wait_topics is None else list(wait_topics)
     stray = sorted(set(names) - set(pubs))
     if stray:
         raise BagError(f'wait topic(s) {stray} are not replayed (replayed: {sorted(pubs)})')
@@ -760,8 +811,31 @@ def _publish_all(bag: Bag, pubs: dict[str, _Topic], stats: ReplayStats, rate: fl
                  progress: Callable[[float, float], None] | None) -> None:
     start_ns, duration_s = bag.start_ns, bag.duration_s
     wall0 = time.monotonic()
-    next_progress = 0.0
     errors: dict[str, str] = {}
+    try:
+        _publish_messages(bag, pubs, stats, rate, ack_timeout, stop, progress, errors,
+                          start_ns, duration_s, wall0)
+    except BagError as exc:
+        stats.problems.append(f'{exc}; the replay stopped after publishing {stats.total} of '
+                              f'{sum(stats.expected.values())} messages')
+    if stats.stopped:
+        return
+    for topic, pub in pubs.items():
+        if pub.reliable and (pub.in_flight or pub.ack_failed):
+            if not pub.wait_acked(ack_timeout, stop) or pub.ack_failed:
+                stats.unacknowledged.append(topic)
+    for topic, error in errors.items():
+        stats.problems.append(f'{topic}: publishing failed ({error})')
+    stats.duration_s = time.monotonic() - wall0
+
+
+def _publish_messages(bag: Bag, pubs: dict[str, _Topic], stats: ReplayStats, rate: float,
+                      ack_timeout: float, stop: threading.Event | None,
+                      progress: Callable[[float, float], None] | None, errors: dict[str, str],
+                      start_ns: int, duration_s: float, wall0: float) -> None:
+    """Every message of the bag in time order, each at its recorded instant / ``rate``
+    (:func:`_publish_all`; a storage that cannot be read further raises :class:`BagError`)."""
+    next_progress = 0.0
     for topic, t_ns, data in bag.messages(pubs):
         bag_t = (t_ns - start_ns) * 1e-9
         due = wall0 + bag_t / rate
@@ -793,13 +867,6 @@ def _publish_all(bag: Bag, pubs: dict[str, _Topic], stats: ReplayStats, rate: fl
             progress(bag_t, duration_s)
     if progress is not None:
         progress(duration_s, duration_s)
-    for topic, pub in pubs.items():
-        if pub.reliable and (pub.in_flight or pub.ack_failed):
-            if not pub.wait_acked(ack_timeout, stop) or pub.ack_failed:
-                stats.unacknowledged.append(topic)
-    for topic, error in errors.items():
-        stats.problems.append(f'{topic}: publishing failed ({error})')
-    stats.duration_s = time.monotonic() - wall0
 
 
 def _judge(bag: Bag, stats: ReplayStats, topics: Sequence[str] | None) -> None:
@@ -807,7 +874,7 @@ def _judge(bag: Bag, stats: ReplayStats, topics: Sequence[str] | None) -> None:
     if stats.stopped:
         stats.problems.append(f'stopped after {stats.total} of {sum(stats.expected.values())} '
                               'messages')
-    elif not sum(stats.expected.values()):
+    elif not sum(stats.expected.values()) and not stats.total:
         stats.problems.append('nothing to replay: ' + (
             f'the topic filter {list(topics)} selects no message' if topics is not None
             else 'the bag holds no message'))
@@ -821,6 +888,10 @@ def _judge(bag: Bag, stats: ReplayStats, topics: Sequence[str] | None) -> None:
                 stats.problems.append(f'{topic}: published {got} of the {n} messages the bag '
                                       'lists' + (' (its storage holds other counts)'
                                                  if bag.stored_counts()[topic] != n else ''))
+    listed = sum(t.count for t in bag.topics.values())
+    if bag.kind == 'directory' and topics is None and bag.message_count != listed:
+        stats.problems.append(f'metadata.yaml lists {bag.message_count} messages in all but '
+                              f'{listed} per topic')
     for topic in stats.unacknowledged:
         stats.problems.append(f'{topic}: its subscribers did not acknowledge every message '
                               'within the ack timeout (a reader stalled or left)')

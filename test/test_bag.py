@@ -36,7 +36,7 @@ from rosbags.typesys import Stores, get_typestore
 from std_msgs.msg import String
 
 from brace_control.bag import (DEFAULT_DEPTH, BagError, Recorder, bag_info, load_qos_overrides,
-                               open_bag, qos_with_overrides, recorded_qos, replay)
+                               message_class, open_bag, qos_with_overrides, recorded_qos, replay)
 from brace_control.nodes.msgs import pose_msg, sec_to_stamp
 from ros_helpers import RELIABLE_10
 
@@ -788,3 +788,116 @@ def test_replay_with_a_qos_override(ros):
     assert got == _stored('sqlite3')['/topic']
     with pytest.raises(BagError, match=r"QoS override\(s\) for \['/nope'\]"):
         replay(ros.node('player2'), REAL['sqlite3'], qos_overrides={'/nope': {'depth': 1}})
+
+
+# ------------------------------------------------------------------ layouts of a sweep (session 14)
+
+def _metadata(bag: Path) -> dict:
+    return yaml.safe_load((bag / 'metadata.yaml').read_text())
+
+
+def _set_metadata(bag: Path, doc: dict) -> None:
+    (bag / 'metadata.yaml').write_text(yaml.safe_dump(doc, sort_keys=False))
+
+
+def test_a_file_compressed_storage_that_is_not_zstd_is_a_clear_error(tmp_path):
+    """``compression_mode: FILE`` (zstd) over a storage file that is not zstd: a BagError
+    naming the file (it was a zstd traceback), and the command exits 1 without one."""
+    bag = tmp_path / 'fake_zstd'
+    write_bag(bag, StoragePlugin.SQLITE3)
+    doc = _metadata(bag)
+    info = doc['rosbag2_bagfile_information']
+    db3 = next(bag.glob('*.db3'))
+    db3.rename(db3.with_name(db3.name + '.zstd'))
+    info['compression_mode'], info['compression_format'] = 'FILE', 'zstd'
+    info['relative_file_paths'] = [db3.name + '.zstd']
+    for f in info.get('files', []):
+        f['path'] = db3.name + '.zstd'
+    _set_metadata(bag, doc)
+    with pytest.raises(BagError, match=r'does not decompress as zstd'):
+        open_bag(bag)
+    r = subprocess.run([sys.executable, '-m', 'brace_control.bag', 'info', str(bag)],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 1 and 'does not decompress as zstd' in r.stderr and 'Traceback' not in r.stderr
+
+
+def test_a_db3_with_messages_left_in_its_write_ahead_log_is_refused(tmp_path):
+    """rosbag2's 'resilient' storage preset journals the .db3 in WAL mode: a recorder that did
+    not close leaves its last messages in ``<file>-wal``, which a read-only open of the .db3
+    alone never sees. The replay refuses it, saying how to merge them (a silent loss of the
+    bag's end before)."""
+    import shutil
+    import sqlite3
+    bag = tmp_path / 'wal'
+    write_bag(bag, StoragePlugin.SQLITE3)
+    db3 = next(bag.glob('*.db3'))
+    work = tmp_path / 'work.db3'
+    shutil.copy(db3, work)
+    con = sqlite3.connect(work, isolation_level=None)
+    con.execute('PRAGMA journal_mode=WAL')
+    con.execute('PRAGMA wal_autocheckpoint=0')
+    con.execute('INSERT INTO messages (topic_id, timestamp, data) '
+                'SELECT topic_id, timestamp + 1000000000, data FROM messages')
+    shutil.copy(work, db3)
+    shutil.copy(f'{work}-wal', f'{db3}-wal')                 # while the writer still holds it
+    con.close()
+    assert Path(f'{db3}-wal').stat().st_size > 0
+    with pytest.raises(BagError, match=r'-wal.*wal_checkpoint'):
+        with open_bag(bag) as b:
+            list(b.messages(b.topics))
+
+
+def test_service_and_old_style_type_names_resolve_to_their_classes():
+    """rosbag2 records service events (``pkg/srv/Name_Event``, Jazzy and later) and old bags
+    name types ``pkg/Name``: both resolve to the Python classes rclpy publishes."""
+    from std_srvs.srv import SetBool
+    assert message_class('std_srvs/srv/SetBool_Event') is SetBool.Event
+    assert message_class('std_msgs/String') is String
+    with pytest.raises(BagError, match='not a ROS 2 message type name'):
+        message_class('std_msgs/thing/String')
+
+
+@pytest.mark.ros
+def test_a_topic_of_a_type_not_installed_without_messages_is_skipped_with_a_warning(ros, tmp_path):
+    """``ros2 bag record -a`` records ``/events/write_split`` (rosbag2_interfaces, not on PyPI)
+    with no message: the replay skips it with a warning, as rosbag2 does, and replays the
+    rest (it refused the whole bag before). A type not installed that does hold messages is
+    still an error (test_message_type_this_python_lacks_is_a_clear_error)."""
+    store = get_typestore(Stores.ROS2_HUMBLE)            # knows rosbag2_interfaces' types
+    bag = tmp_path / 'with_events'
+    payloads = [_pose_cdr(k) for k in range(N)]
+    with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        c = w.add_connection('/brace/pose_goal', POSE_T, typestore=STORE)
+        w.add_connection('/events/write_split', 'rosbag2_interfaces/msg/WriteSplitEvent', typestore=store)
+        for k, data in enumerate(payloads):
+            w.write(c, 1_000_000_000 + k * SPACING_NS, data)
+    stats, raw, _, _ = _replay_into(ros, bag)
+    assert [bytes(m) for m in raw] == payloads
+    assert not stats.problems, stats.problems
+    assert any('/events/write_split' in w and 'no publisher' in w for w in stats.warnings), stats.warnings
+
+
+@pytest.mark.ros
+def test_metadata_counts_that_are_not_the_storage_s_are_problems_and_every_message_is_replayed(ros, tmp_path):
+    """metadata.yaml listing 0 messages per topic while the storage holds them: every stored
+    message is replayed (the wait for subscribers too: it waited for none) and each topic's
+    difference is a problem, not "nothing to replay". A total that is not the sum of the
+    topics' counts is a problem as well."""
+    bag = tmp_path / 'zero_counts'
+    payloads = write_bag(bag, StoragePlugin.SQLITE3)
+    doc = _metadata(bag)
+    for t in doc['rosbag2_bagfile_information']['topics_with_message_count']:
+        t['message_count'] = 0
+    doc['rosbag2_bagfile_information']['message_count'] = 0
+    _set_metadata(bag, doc)
+    stats, raw, _, _ = _replay_into(ros, bag)
+    assert [bytes(m) for m in raw] == payloads
+    assert not any('nothing to replay' in p for p in stats.problems), stats.problems
+    assert any('/brace/pose_goal' in p and f'published {N} of the 0' in p for p in stats.problems), stats.problems
+    total = tmp_path / 'wrong_total'
+    write_bag(total, StoragePlugin.MCAP)
+    doc = _metadata(total)
+    doc['rosbag2_bagfile_information']['message_count'] = 0
+    _set_metadata(total, doc)
+    stats, _, _, _ = _replay_into(ros, total)
+    assert any('lists 0 messages in all' in p for p in stats.problems), stats.problems
