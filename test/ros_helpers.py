@@ -72,6 +72,15 @@ class KernelThread(NamedTuple):
     wchan: str          # where it waits ('-': nowhere)
 
 
+def process_alive(pid: int) -> bool:
+    """The process exists and is not a zombie (a child nobody reaped yet counts as gone)."""
+    try:
+        with open(f'/proc/{pid}/stat') as f:
+            return f.read().rsplit(')', 1)[1].split()[0] != 'Z'
+    except OSError:
+        return False
+
+
 def kernel_threads(pid: int) -> list[KernelThread]:
     """Each thread of ``pid`` (``/proc/<pid>/task/*/stat`` fields 3, 41 and 40, and
     ``wchan``); one that ended meanwhile is passed over."""

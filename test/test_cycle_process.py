@@ -22,7 +22,7 @@ from brace_control.can import ActuatorTrajectory, DriverError, FaultKind, Master
 from brace_control.can.process import MasterProcess
 from brace_control.config import load_device_config
 from brace_control.mechanisms import mechanism_from_config
-from ros_helpers import kernel_threads
+from ros_helpers import kernel_threads, process_alive
 from rpr_oracles import min_jerk
 from test_can_master import wait_for
 
@@ -34,15 +34,6 @@ _ids = itertools.count()
 def _config(**overrides) -> MasterConfig:
     return MasterConfig.from_device_config(CFG, mechanism=MECH,
                                            channel=f'proc-{os.getpid()}-{next(_ids)}', **overrides)
-
-
-def _alive(pid: int) -> bool:
-    """The process exists and is not a zombie (a child nobody reaped yet counts as gone)."""
-    try:
-        with open(f'/proc/{pid}/stat') as f:
-            return f.read().rsplit(')', 1)[1].split()[0] != 'Z'
-    except FileNotFoundError:
-        return False
 
 
 @pytest.fixture
@@ -126,7 +117,7 @@ def test_a_dead_child_is_a_fault_and_every_call_says_so(sig, said):
             mp.home()
     finally:
         mp.shutdown()
-    assert not _alive(mp.pid)
+    assert not process_alive(mp.pid)
 
 
 def test_terminal_signals_are_the_parents(enabled):
@@ -136,7 +127,7 @@ def test_terminal_signals_are_the_parents(enabled):
     for sig in (signal.SIGINT, signal.SIGHUP):
         os.kill(mp.pid, sig)
     time.sleep(0.2)
-    assert _alive(mp.pid) and mp.ended is None
+    assert process_alive(mp.pid) and mp.ended is None
     mp.disable()
     assert mp.state is MasterState.DISABLED
 
@@ -166,10 +157,10 @@ def test_the_child_disables_the_drives_and_ends_with_its_parent(sig, tmp_path):
                                   stdout=subprocess.PIPE, stderr=stderr, text=True)
     try:
         child = int(parent.stdout.readline())
-        assert _alive(child)
+        assert process_alive(child)
         parent.send_signal(sig)
         parent.wait(10)
-        wait_for(lambda: not _alive(child), 10.0, 'the child ends', poll=0.02)
+        wait_for(lambda: not process_alive(child), 10.0, 'the child ends', poll=0.02)
     finally:
         if parent.poll() is None:
             parent.kill()

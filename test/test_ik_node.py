@@ -138,12 +138,18 @@ def _plan(t):
 
 @pytest.fixture
 def motion_rig(ros):
+    return _motion_rig(ros, LUMBAR_YAML, 'ik_motion_test')
+
+
+def _motion_rig(ros, path, name: str):
+    """ik_node of the device file ``path``; a test node ``name`` publishing pose trajectories
+    and collecting the actuator trajectories and the execution events."""
     from diagnostic_msgs.msg import DiagnosticStatus
     from trajectory_msgs.msg import JointTrajectory, MultiDOFJointTrajectory
 
     from brace_control.nodes import topics
-    ik = ros.device_node(IkNode)
-    test = ros.node('ik_motion_test')
+    ik = ros.device_node(IkNode, path)
+    test = ros.node(name)
     out = ros.collect(test, JointTrajectory, topics.ACTUATOR_TRAJECTORY, topics.TRAJECTORY_QOS)
     events = ros.collect(test, DiagnosticStatus, topics.EXECUTION_STATUS, topics.STATUS_QOS)
     pub = test.create_publisher(MultiDOFJointTrajectory, topics.POSE_TRAJECTORY, topics.TRAJECTORY_QOS)
@@ -290,23 +296,13 @@ def test_a_cable_brace_pose_trajectory_through_a_pose_its_cables_cannot_hold_is_
     """A pose trajectory published straight to ik_node, rotating the cable brace's ring from
     0.1 to 0.7 rad: the knots beyond the cables' reach (the test's own statics) make it a
     rejection with its stamp and the cables named; no actuator trajectory goes out."""
-    from diagnostic_msgs.msg import DiagnosticStatus
-    from trajectory_msgs.msg import JointTrajectory, MultiDOFJointTrajectory
-
-    from brace_control.nodes import topics
     from brace_control.nodes.msgs import pose_trajectory_msg, status_values
     t = np.linspace(0.0, 1.0, 11)
     P = np.array([[0.0, 0.0, 0.1 + 0.6 * s] for s in t])
     mixed = [bool(np.min(n) < 0 < np.max(n)) for n in map(_cable_null_direction, P)]
     assert mixed[-1] and not mixed[0], mixed
-    ik = ros.device_node(IkNode, LUMBAR_YAML.parent / 'neck_brace_4rpr.yaml')
-    test = ros.node('ik_cable_motion_test')
-    out = ros.collect(test, JointTrajectory, topics.ACTUATOR_TRAJECTORY, topics.TRAJECTORY_QOS)
-    events = ros.collect(test, DiagnosticStatus, topics.EXECUTION_STATUS, topics.STATUS_QOS)
-    pub = test.create_publisher(MultiDOFJointTrajectory, topics.POSE_TRAJECTORY, topics.TRAJECTORY_QOS)
-    ros.wait_matched(pub)
-    ros.spin_until(lambda: ik._traj_pub.get_subscription_count() >= 1
-                   and ik._status_pub.get_subscription_count() >= 1, what='ik -> test match')
+    ros, ik, pub, out, events = _motion_rig(ros, LUMBAR_YAML.parent / 'neck_brace_4rpr.yaml',
+                                            'ik_cable_motion_test')
     pub.publish(pose_trajectory_msg(t, P, np.zeros_like(P), np.zeros_like(P), frame_id='brace_base',
                                     joint_name='brace_platform', stamp=sec_to_stamp(9.0), kind='planar'))
     ros.spin_until(lambda: len(events) == 1, what='the rejection')

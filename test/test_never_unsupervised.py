@@ -25,7 +25,7 @@ import yaml
 
 from brace_control.can.framelog import read_frames
 from brace_control.nodes.spin import BackgroundSpinner
-from ros_helpers import wait_until
+from ros_helpers import process_alive, wait_until
 
 
 REPO = Path(__file__).resolve().parent.parent
@@ -230,7 +230,7 @@ def _run_ended_mid_motion(ros, proc: subprocess.Popen, tag: str, sig) -> None:
             # the stall from the announcement's arrival (discovery: up to 2 s), then the watch's
             # 3 s, re-armed up to 1 s before, and the half second to SIGALRM
             assert t_end - t_signal <= 2.0 + HUNG_STALL_S + 1.0 + 0.5 + 1.0, t_end - t_signal
-            _wait(lambda: not any(_alive(pid) for pid in cycles), NODES_GONE_S,
+            _wait(lambda: not any(process_alive(pid) for pid in cycles), NODES_GONE_S,
                   f'the control cycle process(es) {cycles} gone after their bring-up\'s end')
         # each node disables what it drives, then ends: 2.45 s and 2.8 s seen in full suite
         # runs on a host giving this VM less CPU (bench/RESULTS.md, "Test suite time"). The
@@ -266,15 +266,6 @@ def _cycle_processes(pid: int) -> list[int]:
         if ppid == pid and 'brace_control.can.process' in cmd:
             out.append(int(entry))
     return out
-
-
-def _alive(pid: int) -> bool:
-    """``pid`` runs (not gone, not a zombie)."""
-    try:
-        with open(f'/proc/{pid}/stat') as f:
-            return f.read().rsplit(')', 1)[1].split()[0] != 'Z'
-    except OSError:
-        return False
 
 
 #: brace-bringup (one process) whose helper node, in its executor's thread, never returns from
