@@ -482,3 +482,32 @@ def test_the_crank_range_seam_has_one_representative(trainer, cfg):
         p = trainer.forward_branch(q)
         single, batch = float(trainer.inverse(p)[0]), float(trainer.inverse_batch(p[None])[0, 0])
         assert single == pytest.approx(q, abs=1e-7) and batch == pytest.approx(q, abs=1e-7), (q, single, batch)
+
+
+# thesis 002, Table 3.1 (Norton's Table 3-1 of Hoeken linkages, L2 = 1): the crank's span
+# d_beta (deg) from theta_start (deg), the link ratios l1/l2, l3/l2 (= l4/l2, BP = l3) and
+# the straight stretch's length d_x/l2, each printed to 3 decimals
+TABLE_3_1 = [(20, 170, 2.975, 3.963, 0.601), (40, 160, 2.950, 3.925, 1.193),
+             (60, 150, 2.900, 3.850, 1.763), (80, 140, 2.825, 3.738, 2.299),
+             (100, 130, 2.725, 3.588, 2.790), (120, 120, 2.625, 3.438, 3.238),
+             (140, 110, 2.500, 3.250, 3.623), (160, 100, 2.350, 3.025, 3.933),
+             (180, 90, 2.200, 2.800, 4.181)]
+
+
+@pytest.mark.parametrize('span, start, r1, r3, dx', TABLE_3_1)
+def test_every_row_of_table_3_1_gives_its_straight_stretch(span, start, r1, r3, dx):
+    """Each row's linkage (l2 = 1) moves its coupler point along a stretch of d_x/l2 (to the
+    table's 3 decimals) while the crank turns d_beta from theta_start; the coupler point is
+    the test's own: B where the circles about the crank pin A and the rocker pivot (l1, 0)
+    of radius l3 meet (B left of A -> O4), P = A + 2 (B - A)."""
+    m = HoekenFourBar(r1, 1.0, r3, r3)
+    th = np.radians(np.linspace(start, start + span, 9))
+    P = m.path_point(th)[0]
+    for t, p in zip(th, P):
+        A = np.array([math.cos(t), math.sin(t)])
+        d = np.array([r1, 0.0]) - A
+        dist = float(np.linalg.norm(d))
+        u = d / dist
+        B = A + u * dist / 2 + math.sqrt(r3 ** 2 - (dist / 2) ** 2) * np.array([-u[1], u[0]])
+        np.testing.assert_allclose(p, A + 2 * (B - A), atol=1e-12)
+    assert abs(P[-1, 0] - P[0, 0]) == pytest.approx(dx, abs=6e-4)

@@ -45,7 +45,8 @@ square and the Cramer lift fails):
   two ``theta``; for each, ``p`` is a line (``m_2 . p = r_2``) cut by the circle
   ``|p| = l1`` (eqs. 7-9), two points: at most four modes. The paper pairs the sign of
   ``theta`` with the sign of ``y`` in eqs. 10-13; that pairing does not hold in general
-  (``y = (b x - a) / c`` from eq. 5 fixes it), so no pairing is assumed here. The modes
+  (``y = (a - b x) / c`` from eq. 5 fixes it; eq. 5 prints ``- 4 r2 v2 y``, the
+  expansion of eq. 4 and the paper's own eq. 8 have ``+``: erratum 3), so no pairing is assumed here. The modes
   come in mirror pairs ``(x, y, t) <-> (x, -y, -t)`` (reflection in the base line), so
   two of the four have ``y > 0``, one of each pair: "the mode with y > 0" is not unique,
   use :meth:`Rpr3.forward_nearest`.

@@ -150,7 +150,8 @@ class ViaPointMinimumJerk(PiecewisePolynomial):
     A piecewise quintic through ``start``, each row of ``via`` in order, and ``goal``,
     C4 at every via point (Flash & Hogan, Appendix C). With ``t_via=None`` the via
     times minimise the integrated squared jerk (2.1) over the fixed ``duration``; the
-    thesis found ``t1/tf = 0.243349`` for its curved reach.
+    thesis found ``t1 = 0.243349 s`` (``tf = 0.5 s``, ``t1/tf = 0.4867``) for its curved reach,
+    rounded to 0.25 s in App. B — the optimum this class finds for those points.
 
     :param start: start position (dim,).
     :param via: one via point (dim,) or several (k, dim), in the order they are passed.
