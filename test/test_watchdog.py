@@ -57,11 +57,34 @@ def test_quick(n):
 '''
 
 
-def _run_suite(tmp_path: Path, *args: str) -> tuple[int | None, str]:
-    """The small suite run in ``tmp_path`` with ``args``: the exit code (None if it hung and
-    was killed) and what it printed."""
+#: a test that fails, then hangs in its fixture's teardown (a Fast DDS deadlock destroying an
+#: endpoint, fresh-clone run 1405): pytest's faulthandler plugin cancels the process's one
+#: faulthandler timer on the failure
+FAILS_THEN_HANGS_FILE = '''
+import ctypes
+import os
+
+import pytest
+
+
+@pytest.fixture
+def endpoint():
+    yield
+    with open(os.environ['ATTEMPTS'], 'a') as f:
+        f.write('attempt\\n')
+    ctypes.PyDLL(None).sleep(600)
+
+
+def test_hangs(endpoint):
+    assert False, 'the body fails'
+'''
+
+
+def _run_suite(tmp_path: Path, *args: str, hanging: str = HANGING_FILE) -> tuple[int | None, str]:
+    """The small suite run in ``tmp_path`` with ``args`` (``hanging``: test_hang.py's text):
+    the exit code (None if it hung and was killed) and what it printed."""
     (tmp_path / 'pytest.ini').write_text('[pytest]\n')          # not the project's setup.cfg
-    (tmp_path / 'test_hang.py').write_text(HANGING_FILE)
+    (tmp_path / 'test_hang.py').write_text(hanging)
     (tmp_path / 'test_quick.py').write_text(QUICK_FILE)
     env = {k: v for k, v in os.environ.items()
            if not k.startswith('PYTEST_XDIST_') and k not in ('PYTEST_CURRENT_TEST', 'PYTEST_ADDOPTS')}
@@ -118,3 +141,15 @@ def test_without_xdist_the_watchdog_ends_the_run_after_its_limit(tmp_path):
     assert _attempts(tmp_path) == 1, out[-4000:]
     assert re.search(r'Timeout \(0:00:03\)!', out), out[-4000:]
     assert re.search(r'line \d+ in test_hangs', out), out[-4000:]
+
+
+def test_a_teardown_that_hangs_after_its_test_failed_is_ended_too(tmp_path):
+    """pytest's faulthandler plugin cancels the process's one faulthandler timer when a test
+    fails (pytest_exception_interact): the watchdog is armed again, so a teardown stuck in
+    native code after a failure ends its process as well (run 1405 hung 20 min there)."""
+    code, out = _run_suite(tmp_path, '-p', 'no:xdist', hanging=FAILS_THEN_HANGS_FILE)
+    assert code is not None, f'the run hung: killed after {RUN_TIMEOUT_S} s\n{out[-4000:]}'
+    assert code == 1, out[-4000:]
+    assert _attempts(tmp_path) == 1, out[-4000:]
+    assert re.search(r'Timeout \(0:00:03\)!', out), out[-4000:]
+    assert re.search(r'line \d+ in endpoint', out), out[-4000:]

@@ -110,18 +110,45 @@ def _ended_worker(nodeid: str) -> tuple[str, str] | None:
     return None
 
 
+#: a test's protocol is running (the watchdog is armed only then)
+_in_test: list[bool] = [False]
+
+
+def _arm() -> None:
+    if _watchdog_out is not None and _in_test[0]:
+        faulthandler.dump_traceback_later(TEST_LIMIT_S, exit=True, file=_watchdog_out)
+
+
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item, nextitem):
     """The watchdog is armed for the test's setup, call and teardown; under pytest-xdist the
     worker's record names the test meanwhile."""
     _record(f'{item.nodeid}\n{_stacks_where}')
-    if _watchdog_out is not None:
-        faulthandler.dump_traceback_later(TEST_LIMIT_S, exit=True, file=_watchdog_out)
+    _in_test[0] = True
+    _arm()
     try:
         yield
     finally:
+        _in_test[0] = False
         faulthandler.cancel_dump_traceback_later()
         _record('')
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_exception_interact(node, call, report):
+    """Armed again after a failure. The process has one faulthandler timer, and pytest's own
+    faulthandler plugin cancels it in this hook (for a debugger), so the teardown after a
+    failed test ran unwatched: fresh-clone run 1405 hung 20 minutes in a ``ros`` fixture's
+    teardown (a publisher's destruction deadlocked inside Fast DDS) after its test failed."""
+    _arm()
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_teardown(item, nextitem):
+    """Armed again for the teardown, whatever the test body did with the process's one
+    faulthandler timer (a test of ``runner.cut_short_after`` uses it too)."""
+    _arm()
+    yield
 
 
 @pytest.hookimpl(tryfirst=True)
