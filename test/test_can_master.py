@@ -1294,3 +1294,79 @@ def test_a_drive_under_local_control_is_named_when_enable_times_out(rig):
     assert sim.drive(2).statusword & 0x200 == 0 and sim.drive(1).statusword & 0x200
     sim.faults.local_control(2, False)
     master.enable()
+
+
+# ------------------------------------------------------------------ from a fault sweep (session 14)
+
+def test_a_relief_that_a_new_fault_ends_returns_at_once():
+    """docs/safety.md §15: a relief under way when a fault it cannot back off from latches (a
+    drive's heartbeat lost): the drives stop, and relieve() answers at once with the fault,
+    not after its own time-out (it waited 60 s + 2 s here, holding the API: a disable
+    meanwhile waited as long)."""
+    import threading
+    sim, master = _rig_with({'force_limit': 30.0, 'soft_force_limit': 24.0, 'release_force': 6.0})
+    try:
+        sim.set_rest_pose(HOME + [0.0, -0.026, 0.0])
+        wait_for(_latched(master, FaultKind.FORCE_LIMIT), 0.5, 'force limit')
+        wait_for(lambda: stopped(master), 0.5, 'protective stop')
+        result: dict = {}
+
+        def relieve() -> None:
+            try:
+                result['message'] = master.relieve(timeout=60.0)
+            except DriverOperationError as exc:
+                result['error'] = str(exc)
+            result['at'] = time.monotonic()
+        worker = threading.Thread(target=relieve)
+        worker.start()
+        wait_for(lambda: np.abs(sim.truth().velocities).max() > 1e-5, 5.0, 'the relief moving')
+        t0 = time.monotonic()
+        sim.faults.silence_heartbeat(2)
+        worker.join(10.0)
+        assert not worker.is_alive(), 'relieve() still waiting 10 s after the fault'
+        assert result['at'] - t0 < 1.0, result['at'] - t0
+        assert 'relief stopped' in result.get('error', '') and 'heartbeat' in result['error'], result
+        wait_for(lambda: np.abs(sim.truth().velocities).max() < 1e-6, 1.0, 'the brace still')
+    finally:
+        sim.faults.silence_heartbeat(2, False)
+        master.shutdown()
+        sim.shutdown()
+
+
+def test_a_drive_that_left_operational_must_be_homed_again(rig):
+    """docs/safety.md §2: a drive that restarts without a boot-up message (an NMT reset the
+    drive answers silently) comes back with its position counter anew: the truth and its
+    reading no longer agree. recover re-configures it but the master is no longer homed, and
+    enable is refused until it is."""
+    sim, master = rig
+    sim.faults.silent_boot(2, 'always')
+    master.network.send_message(0, bytes([0x81, 2]))          # NMT reset node 2
+    wait_for(lambda: master.supervisor.latched, 1.0, 'the restart seen')
+    deadline = time.monotonic() + 5.0
+    while master.recover() and time.monotonic() < deadline:
+        time.sleep(0.2)                                       # its heartbeat still to come
+    assert not master.supervisor.latched, master.supervisor.summary()
+    off = np.abs(master.feedback().position - sim.truth().lengths)
+    assert off[1] > 0.01, off                                 # why: a2's reading restarted
+    assert not master.homed
+    with pytest.raises(DriverOperationError, match='hom'):
+        master.enable()
+    master.home()
+    master.enable()
+    np.testing.assert_allclose(master.feedback().position, sim.truth().lengths, atol=2e-6)
+
+
+def test_a_homing_cut_short_leaves_the_master_not_homed_and_the_drives_in_csp(rig):
+    """A homing that fails midway (drive 2's EMCY with a drive fault while homing) leaves the
+    reference unknown: not homed, and every drive back in cyclic synchronous position (6061h,
+    read back from the drives), not left in homing mode."""
+    sim, master = rig
+    master.disable()
+    sim.faults.send_emcy(2, 0x7305, fault=True)
+    with pytest.raises(Exception):
+        master.home()
+    assert not master.homed
+    sim.faults.clear_emcy_fault(2)
+    for d in master.life.drives:
+        assert d.node.sdo[0x6061].raw == 8, d.name            # cyclic synchronous position
+

@@ -507,7 +507,17 @@ class Boot:
             self._sdo_all(0x6060, 0, life.mode)
             life.homed = True
         except BaseException:
+            # a homing cut short leaves the reference unknown (the drive may have set its
+            # position already) and the drives in homing mode: not homed, and 6060h back to
+            # cyclic synchronous position where the drives still answer (a fault sweep: a
+            # failed re-homing kept `homed` and homing mode)
+            life.homed = False
             life.mode = int(OpMode.CYCLIC_SYNC_POSITION)
+            try:
+                self._sdo_all(0x6060, 0, life.mode)
+            except Exception as exc:  # noqa: BLE001 - the homing's own error is the one raised
+                log.error('homing failed and 6060h could not be set back to cyclic synchronous '
+                          'position (%s): recover and home again', exc)
             life.desired = State402.SWITCH_ON_DISABLED
             life.set_state(MasterState.FAULT if self._supervisor.latched else MasterState.DISABLED)
             raise

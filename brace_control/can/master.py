@@ -758,6 +758,13 @@ class BraceMaster:
                             self.setup.configure(d)
                             d.checked = None
                             d.history.clear()
+                            # it left OPERATIONAL: it may have restarted without a boot-up
+                            # message (its position counter then starts anew), so its
+                            # reference is not trusted: home again (a fault sweep: a silent
+                            # reboot kept `homed`, and a2 read 390 mm off the truth)
+                            if life.homed:
+                                log.warning('recover: %s left OPERATIONAL: home again', d.name)
+                            life.homed = False
                         d.node.nmt.send_command(0x01)
                         restarted.append(d)
                     except DriverInitializationError as exc:

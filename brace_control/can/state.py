@@ -458,6 +458,9 @@ class Relief:
         other = [f for f in faults if f.kind not in self.relievable]
         if other and self.outcome is None:
             self.outcome = f'a new fault: {other[0].describe()}'
+            # the cycle drops the relief at once: the caller waiting for it hears now (it
+            # waited for the relief's time-out + 2 s, holding the API: a fault sweep)
+            self.finished.set()
 
 
 class TakeUp:
