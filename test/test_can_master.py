@@ -1370,3 +1370,41 @@ def test_a_homing_cut_short_leaves_the_master_not_homed_and_the_drives_in_csp(ri
     for d in master.life.drives:
         assert d.node.sdo[0x6061].raw == 8, d.name            # cyclic synchronous position
 
+
+
+def test_a_relief_steered_by_a_load_cell_that_misreads_stops_before_it_presses_harder():
+    """docs/safety.md §15 "under force supervision": during a relief, a2's load cell sticks at
+    -31.5 N (beyond the 30 N limit, the other way from its leg's load). The relief ends at
+    once, naming a2, and no true leg force rises above what the relief started with (it drove
+    a2's true force to 293 N: the hard limit, latched already, said nothing more). Oracle: the
+    simulator's true forces, sampled throughout."""
+    import threading
+    sim, master = _rig_with({'force_limit': 30.0, 'soft_force_limit': 24.0, 'release_force': 6.0})
+    try:
+        sim.set_rest_pose(HOME + [0.0, -0.026, 0.0])
+        wait_for(_latched(master, FaultKind.FORCE_LIMIT), 0.5, 'force limit')
+        wait_for(lambda: stopped(master), 0.5, 'protective stop')
+        time.sleep(0.3)
+        start = np.abs(sim.truth().forces).max()
+        result: dict = {}
+
+        def relieve() -> None:
+            try:
+                result['message'] = master.relieve(timeout=20.0)
+            except DriverOperationError as exc:
+                result['error'] = str(exc)
+        worker = threading.Thread(target=relieve)
+        worker.start()
+        wait_for(lambda: np.abs(sim.truth().velocities).max() > 1e-5, 5.0, 'the relief moving')
+        time.sleep(0.3)
+        sim.faults.set_load_cell(2, -31.5)
+        peak = 0.0
+        while worker.is_alive():
+            peak = max(peak, float(np.abs(sim.truth().forces).max()))
+            time.sleep(0.002)
+        assert 'relief stopped' in result.get('error', '') and 'a2' in result['error'], result
+        assert peak <= max(30.0, start) + 2.0, (peak, start)
+    finally:
+        sim.faults.set_load_cell(2, None)
+        master.shutdown()
+        sim.shutdown()

@@ -595,6 +595,7 @@ class BraceMaster:
                     life.reset_pulse = False
             ranges, max_travel = self._slow_move_ranges(max_travel)
             relief = Relief(release_force=release, speed=speed_share * self.limits.v_max,
+                            force_limit=self.limits.force_limit,
                             max_travel=max_travel, deadline=time.perf_counter() + timeout,
                             start=fb.position, forces=fb.force, relievable=RELIEVABLE,
                             lo=np.array([r[0] for r in ranges]), hi=np.array([r[1] for r in ranges]),

@@ -416,8 +416,11 @@ class Relief:
     def __init__(self, *, release_force: float, speed: float, max_travel: float, deadline: float,
                  start: np.ndarray, forces: np.ndarray, relievable: frozenset,
                  lo: np.ndarray, hi: np.ndarray, names: tuple[str, ...],
-                 confirm: int = 1, unit: str = 'm') -> None:
+                 confirm: int = 1, unit: str = 'm', force_limit: float = math.inf) -> None:
         self.release_force = release_force
+        #: ``safety.force_limit``: a leg a relief loads beyond it (more than it started with,
+        #: or the other way round) ends the relief: a relief never presses harder
+        self.force_limit = float(force_limit)
         #: consecutive samples every force must stay below the release force (one noisy
         #: reading below it is not an unloaded leg)
         self.confirm = max(1, int(confirm))
@@ -441,7 +444,18 @@ class Relief:
         self.forces = np.asarray(forces, dtype=float).copy()
         self.travel = float(np.max(np.abs(np.asarray(q) - self.start)))
         self._below = self._below + 1 if np.all(np.abs(self.forces) < self.release_force) else 0
-        if self._below >= self.confirm:
+        f, f0 = np.abs(self.forces), np.abs(self.forces_before)
+        # a leg the relief loads beyond the force limit: more than at its start, or the other
+        # way round (a load cell that reads wrong steers the others into the body: a fault
+        # sweep saw a2's true force reach 293 N against a 30 N limit while the hard limit,
+        # latched already, stayed silent)
+        worse = (f > self.force_limit) & ((f > f0 + 1.0) | (np.sign(self.forces) * np.sign(self.forces_before) < 0))
+        if np.any(worse):
+            i = int(np.argmax(worse))
+            self.outcome = (f'{self.names[i]} at {self.forces[i]:.1f} (it started at '
+                            f'{self.forces_before[i]:.1f}), beyond safety.force_limit = '
+                            f'{self.force_limit:g}: a relief never presses harder')
+        elif self._below >= self.confirm:
             self.outcome = ''
         elif np.any(np.asarray(q) <= self.lo + STROKE_MARGIN) or np.any(np.asarray(q) >= self.hi - STROKE_MARGIN):
             i = int(np.argmax((np.asarray(q) <= self.lo + STROKE_MARGIN) | (np.asarray(q) >= self.hi - STROKE_MARGIN)))
