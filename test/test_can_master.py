@@ -1279,21 +1279,30 @@ def test_a_cable_brace_takes_up_its_slack_after_a_relief():
         sim.shutdown()
 
 
-def test_a_drive_under_local_control_is_named_when_enable_times_out(rig):
-    """A drive left under local control (its panel, the vendor's setup tool) keeps statusword
-    bit 9 (remote) clear and ignores the controlword: enable times out, and the message names
-    that drive and the remote bit, not only the states."""
+def test_a_drive_under_local_control_is_named_when_enable_times_out():
+    """A drive left under local control from its start (its panel, the vendor's setup tool)
+    keeps statusword bit 9 (remote) clear and ignores the controlword: homing, then enable,
+    time out, and the message names that drive and the remote bit, not only the states. (A
+    drive taken under local control later is a protective stop at once: below.)"""
     from brace_control.can import DriverTimeoutError
-    sim, master = rig
-    master.disable()
-    sim.faults.local_control(2)
-    with pytest.raises(DriverTimeoutError) as err:
-        master.enable(timeout=0.5)
-    text = str(err.value)
-    assert 'bit 9 (remote) is clear on a2' in text and 'a1' not in text.split('clear on')[1], text
-    assert sim.drive(2).statusword & 0x200 == 0 and sim.drive(1).statusword & 0x200
-    sim.faults.local_control(2, False)
-    master.enable()
+    channel = f'cantest-{os.getpid()}-{next(_ids)}'
+    sim = SimulatedBrace(CFG, channel=channel)
+    master = BraceMaster.from_device_config(CFG, channel=channel)
+    try:
+        sim.faults.local_control(2)
+        master.boot()
+        with pytest.raises(DriverTimeoutError) as err:
+            master.home(timeout=1.0)
+        text = str(err.value)
+        assert 'bit 9 (remote) is clear on a2' in text and 'a1' not in text.split('clear on')[1], text
+        assert sim.drive(2).statusword & 0x200 == 0 and sim.drive(1).statusword & 0x200
+        assert not master.supervisor.latched, master.supervisor.summary()   # never remote: no stop
+        sim.faults.local_control(2, False)
+        master.home()
+        master.enable()
+    finally:
+        master.shutdown()
+        sim.shutdown()
 
 
 # ------------------------------------------------------------------ from a fault sweep (session 14)
@@ -1408,3 +1417,22 @@ def test_a_relief_steered_by_a_load_cell_that_misreads_stops_before_it_presses_h
         sim.faults.set_load_cell(2, None)
         master.shutdown()
         sim.shutdown()
+
+
+def test_a_drive_taken_under_local_control_is_a_protective_stop_naming_it(rig):
+    """docs/safety.md §4: a drive put under local control (statusword bit 9, remote, clear:
+    its panel or a setup tool) ignores the controlword from the bus, so the master cannot stop
+    it. Latched and named at once; the other drives stop; recover is refused until the drive
+    is back under the bus's control."""
+    sim, master = rig
+    sim.faults.local_control(2)
+    try:
+        wait_for(_latched(master, FaultKind.DRIVE_FAULT, 'a2'), OBSERVE_S, 'local control seen')
+        assert 'remote' in master.supervisor.summary() and 'local control' in master.supervisor.summary()
+        wait_for(lambda: all(sim.drive(n).state in (State402.QUICK_STOP_ACTIVE, State402.SWITCH_ON_DISABLED)
+                             for n in (1, 3)), 0.5, 'the other drives stopped')
+        assert master.recover(), 'recover accepted with a2 still under local control'
+    finally:
+        sim.faults.local_control(2, False)
+    _recover_ok(master)
+    master.enable()

@@ -34,6 +34,7 @@ log = logging.getLogger('brace_control.can.master')
 
 _SW_FAULT = 1 << 3
 _SW_WARNING = 1 << 7
+_SW_REMOTE = 1 << 9
 _SW_LIMIT = 1 << 11
 
 #: s of position-loop lag allowed a drive without velocity feed-forward (60B1h): a loop of
@@ -198,6 +199,20 @@ class Monitors:
                 self._supervisor.report(FaultKind.DRIVE_FAULT,
                                        f'statusword {sw:04X}h: {describe_statusword(sw)}{why}',
                                        drive=name, code=code, still_present=self._drive_faulted(d))
+            if sw & _SW_REMOTE:
+                d.remote_seen = True
+            elif d.remote_seen:
+                # docs/safety.md §4: taken under local control (its panel, a vendor's setup
+                # tool), the drive ignores the controlword from the bus: the master can no
+                # longer stop it, so the others stop and it is named (a fault sweep: after a
+                # protective stop that drive stayed OPERATION ENABLED, unreported)
+                self._supervisor.report(
+                    FaultKind.DRIVE_FAULT,
+                    f'statusword {sw:04X}h: bit 9 (remote) clear: under local control (its panel, a '
+                    'setup tool), the drive ignores the controlword from the bus and the master '
+                    'cannot stop it; stop it at the drive, give control back to the bus, recover',
+                    drive=name, still_present=lambda d=d: d.sample is not None
+                    and not d.sample.statusword & _SW_REMOTE)
             if sw & (_SW_WARNING | _SW_LIMIT) or d.flagged:
                 d.flagged = bool(sw & (_SW_WARNING | _SW_LIMIT))
                 if sw & _SW_WARNING:

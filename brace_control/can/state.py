@@ -383,6 +383,7 @@ class _Drive(_Node):
     sent: deque = field(default_factory=lambda: deque(maxlen=128))   # (SYNC index, target counts)
     reset_phase: bool = False
     flagged: bool = False                  # warning / internal-limit bit seen last sample
+    remote_seen: bool = False              # statusword bit 9 (remote) seen set since the boot
     force_trend: deque = field(default_factory=lambda: deque(maxlen=10))   # |force| of recent samples
 
     @property
