@@ -1436,3 +1436,19 @@ def test_a_drive_taken_under_local_control_is_a_protective_stop_naming_it(rig):
         sim.faults.local_control(2, False)
     _recover_ok(master)
     master.enable()
+
+
+def test_an_encoder_that_jumps_while_the_brace_is_disabled_is_caught(rig):
+    """docs/safety.md §9: a reading that jumps faster than the actuator can move is a fault
+    whether or not the drive is commanded: drive 2's encoder jumps 3 mm while the brace is
+    disabled. It latches (the reference is suspect: not homed), so the next enable cannot
+    start from a reading 3 mm off the truth (it did)."""
+    sim, master = rig
+    master.disable()
+    sim.faults.jump_encoder(2, 0.003)
+    wait_for(_latched(master, FaultKind.POSITION_JUMP, 'a2'), OBSERVE_S, 'the jump caught')
+    assert not master.homed
+    off = master.feedback().position - sim.truth().lengths
+    assert abs(off[1]) > 0.002, off                          # the reading is off the truth
+    with pytest.raises(Exception):
+        master.enable()

@@ -21,7 +21,7 @@ from ..safety import OK, Action, ForcePrediction, PlatformWrench, Verdict, Wrenc
 from ..safety.force import pressing_past_soft_limit
 from ..safety.liveness import heartbeat, overspeed, stale_feedback
 from ..safety.wrench import SOFT_STREAM_S
-from .cia402 import NmtState, State402, decode_state, describe_statusword, emcy_description
+from .cia402 import NmtState, OpMode, State402, decode_state, describe_statusword, emcy_description
 from .lifecycle import Lifecycle, Motion
 from .receive import Receiver
 from .state import MasterConfig, MasterState, _Drive, _Module, _Node
@@ -35,6 +35,7 @@ log = logging.getLogger('brace_control.can.master')
 _SW_FAULT = 1 << 3
 _SW_WARNING = 1 << 7
 _SW_REMOTE = 1 << 9
+_CSP = int(OpMode.CYCLIC_SYNC_POSITION)
 _SW_LIMIT = 1 << 11
 
 #: s of position-loop lag allowed a drive without velocity feed-forward (60B1h): a loop of
@@ -225,7 +226,11 @@ class Monitors:
                     self._supervisor.unwarn(f'{name}.limit')
             commanded = (self._scaling.to_si(self._commanded_for(d, s))
                          if tracking and decode_state(sw) is State402.OPERATION_ENABLED else None)
-            for kind, cause in check_sample(d.checked, s, limits, commanded=commanded):
+            # a jump is judged at rest too (disabled, halted: an encoder that jumps there
+            # made the next enable start from a reading millimetres off the truth), not while
+            # homing moves the reference on purpose
+            jump = life.state is not MasterState.HOMING and life.mode == _CSP
+            for kind, cause in check_sample(d.checked, s, limits, commanded=commanded, jump=jump):
                 self._supervisor.report(kind, cause, drive=name,
                                        still_present=(None if kind is FaultKind.POSITION_JUMP
                                                       else self._sample_condition(d, kind)))

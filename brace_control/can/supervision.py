@@ -368,11 +368,13 @@ def _actuator_limits(cfg: Mapping[str, Any], mechanism: Any = None
 
 
 def check_sample(prev: Sample | None, cur: Sample, limits: Limits, *,
-                 commanded: float | None) -> list[tuple[FaultKind, str]]:
+                 commanded: float | None, jump: bool = False) -> list[tuple[FaultKind, str]]:
     """Per-sample monitors of one drive: saturation, force, jump, following error.
 
     ``commanded`` is the target the drive should track (``None``: not tracking, e.g.
-    disabled or homing: no following-error or jump check).
+    disabled or homing: no following-error check). ``jump``: judge a position jump while not
+    tracking as well (a disabled or halted drive whose encoder jumps: not while homing,
+    which moves the reference on purpose).
 
     The rules are :mod:`brace_control.safety`'s: :func:`~brace_control.safety.force.saturation`
     (docs/safety.md §9), else :func:`~brace_control.safety.force.force_limit` (§8), then while
@@ -388,14 +390,14 @@ def check_sample(prev: Sample | None, cur: Sample, limits: Limits, *,
         verdict = _force_limit(cur.force, limits.force_limit, limits.force_unit)
         if verdict is not _OK:
             out.append((FaultKind.FORCE_LIMIT, verdict.reason))
+    if (commanded is not None or jump) and prev is not None and cur.sync_index > prev.sync_index:
+        verdict = _position_jump(prev.position, cur.position,
+                                 (cur.sync_index - prev.sync_index) * limits.period,
+                                 v_max=limits.v_max, jump_factor=limits.jump_factor,
+                                 margin=limits.step_margin, unit=limits.unit)
+        if verdict is not _OK:
+            out.append((FaultKind.POSITION_JUMP, verdict.reason))
     if commanded is not None:
-        if prev is not None and cur.sync_index > prev.sync_index:
-            verdict = _position_jump(prev.position, cur.position,
-                                     (cur.sync_index - prev.sync_index) * limits.period,
-                                     v_max=limits.v_max, jump_factor=limits.jump_factor,
-                                     margin=limits.step_margin, unit=limits.unit)
-            if verdict is not _OK:
-                out.append((FaultKind.POSITION_JUMP, verdict.reason))
         verdict = _following_error(cur.position, commanded, limits.path_tolerance, limits.unit)
         if verdict is not _OK:
             out.append((FaultKind.FOLLOWING_ERROR, verdict.reason))
