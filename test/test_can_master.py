@@ -1307,28 +1307,42 @@ def test_a_drive_under_local_control_is_named_when_enable_times_out():
 
 # ------------------------------------------------------------------ from a fault sweep (session 14)
 
-def test_a_relief_that_a_new_fault_ends_returns_at_once():
-    """docs/safety.md §15: a relief under way when a fault it cannot back off from latches (a
-    drive's heartbeat lost): the drives stop, and relieve() answers at once with the fault,
-    not after its own time-out (it waited 60 s + 2 s here, holding the API: a disable
-    meanwhile waited as long)."""
+def _relieving_a_slumped_patient(timeout: float):
+    """The lumbar rig (force limit 30 N) with the patient slumped 26 mm: the force stop
+    latched, then ``relieve(timeout)`` running in a thread. Returns ``sim, master, worker,
+    result``: ``result`` gets ``message`` or ``error`` and ``at`` (monotonic) when it returns."""
     import threading
     sim, master = _rig_with({'force_limit': 30.0, 'soft_force_limit': 24.0, 'release_force': 6.0})
     try:
         sim.set_rest_pose(HOME + [0.0, -0.026, 0.0])
         wait_for(_latched(master, FaultKind.FORCE_LIMIT), 0.5, 'force limit')
         wait_for(lambda: stopped(master), 0.5, 'protective stop')
-        result: dict = {}
+        time.sleep(0.3)
+    except BaseException:
+        master.shutdown()
+        sim.shutdown()
+        raise
+    result: dict = {'start': float(np.abs(sim.truth().forces).max())}
 
-        def relieve() -> None:
-            try:
-                result['message'] = master.relieve(timeout=60.0)
-            except DriverOperationError as exc:
-                result['error'] = str(exc)
-            result['at'] = time.monotonic()
-        worker = threading.Thread(target=relieve)
-        worker.start()
-        wait_for(lambda: np.abs(sim.truth().velocities).max() > 1e-5, 5.0, 'the relief moving')
+    def relieve() -> None:
+        try:
+            result['message'] = master.relieve(timeout=timeout)
+        except DriverOperationError as exc:
+            result['error'] = str(exc)
+        result['at'] = time.monotonic()
+    worker = threading.Thread(target=relieve)
+    worker.start()
+    wait_for(lambda: np.abs(sim.truth().velocities).max() > 1e-5, 5.0, 'the relief moving')
+    return sim, master, worker, result
+
+
+def test_a_relief_that_a_new_fault_ends_returns_at_once():
+    """docs/safety.md §15: a relief under way when a fault it cannot back off from latches (a
+    drive's heartbeat lost): the drives stop, and relieve() answers at once with the fault,
+    not after its own time-out (it waited 60 s + 2 s here, holding the API: a disable
+    meanwhile waited as long)."""
+    sim, master, worker, result = _relieving_a_slumped_patient(60.0)
+    try:
         t0 = time.monotonic()
         sim.faults.silence_heartbeat(2)
         worker.join(10.0)
@@ -1338,6 +1352,7 @@ def test_a_relief_that_a_new_fault_ends_returns_at_once():
         wait_for(lambda: np.abs(sim.truth().velocities).max() < 1e-6, 1.0, 'the brace still')
     finally:
         sim.faults.silence_heartbeat(2, False)
+        worker.join(70.0)
         master.shutdown()
         sim.shutdown()
 
@@ -1384,27 +1399,12 @@ def test_a_homing_cut_short_leaves_the_master_not_homed_and_the_drives_in_csp(ri
 def test_a_relief_steered_by_a_load_cell_that_misreads_stops_before_it_presses_harder():
     """docs/safety.md §15 "under force supervision": during a relief, a2's load cell sticks at
     -31.5 N (beyond the 30 N limit, the other way from its leg's load). The relief ends at
-    once, naming a2, and no true leg force rises above what the relief started with (it drove
-    a2's true force to 293 N: the hard limit, latched already, said nothing more). Oracle: the
-    simulator's true forces, sampled throughout."""
-    import threading
-    sim, master = _rig_with({'force_limit': 30.0, 'soft_force_limit': 24.0, 'release_force': 6.0})
+    once, naming a2, and no true leg force rises above what the relief started with (it
+    steered every leg to a stroke's end, all three pressing 31 N the other way: the hard
+    limit, latched already, said nothing more). Oracle: the simulator's true forces, sampled
+    throughout."""
+    sim, master, worker, result = _relieving_a_slumped_patient(20.0)
     try:
-        sim.set_rest_pose(HOME + [0.0, -0.026, 0.0])
-        wait_for(_latched(master, FaultKind.FORCE_LIMIT), 0.5, 'force limit')
-        wait_for(lambda: stopped(master), 0.5, 'protective stop')
-        time.sleep(0.3)
-        start = np.abs(sim.truth().forces).max()
-        result: dict = {}
-
-        def relieve() -> None:
-            try:
-                result['message'] = master.relieve(timeout=20.0)
-            except DriverOperationError as exc:
-                result['error'] = str(exc)
-        worker = threading.Thread(target=relieve)
-        worker.start()
-        wait_for(lambda: np.abs(sim.truth().velocities).max() > 1e-5, 5.0, 'the relief moving')
         time.sleep(0.3)
         sim.faults.set_load_cell(2, -31.5)
         peak = 0.0
@@ -1412,9 +1412,10 @@ def test_a_relief_steered_by_a_load_cell_that_misreads_stops_before_it_presses_h
             peak = max(peak, float(np.abs(sim.truth().forces).max()))
             time.sleep(0.002)
         assert 'relief stopped' in result.get('error', '') and 'a2' in result['error'], result
-        assert peak <= max(30.0, start) + 2.0, (peak, start)
+        assert peak <= max(30.0, result['start']) + 2.0, (peak, result['start'])
     finally:
         sim.faults.set_load_cell(2, None)
+        worker.join(30.0)
         master.shutdown()
         sim.shutdown()
 
