@@ -111,8 +111,12 @@ class Receiver:
         #: bus timestamp (wall clock) of the newest frame received from a drive
         self.rx_wall = -math.inf
         #: s this process did not run, summed over the stalls its SYNC thread saw
-        #: (:meth:`host_stalled`): no heartbeat age counts them
+        #: (:meth:`host_stalled`): no heartbeat age counts them. On python-can's virtual bus
+        #: only: its drives (the simulated brace) stand still with this process; on a real
+        #: bus the frames of meanwhile wait in the socket with the kernel's timestamps, and
+        #: the span of frames received already tells a drive's silence from this process's
         self.stalled_s = 0.0
+        self._stalls_stop_the_bus = config.interface == 'virtual'
         #: all drives silent for this many SYNCs -> stale (one silent drive: stale_periods).
         #: From the master alone, "every drive silent" cannot be told from "this process
         #: did not get to receive", so the bound is the drives' own consumer time of our
@@ -217,20 +221,21 @@ class Receiver:
         wiring, or a host too starved to receive), it is the time since the heartbeat by
         the wall clock.
 
-        Either way, the time this process did not run since that heartbeat (:meth:`host_stalled`)
-        does not count: a simulated bus stood still with it (its drives live in this process),
-        and on a real one the heartbeats of meanwhile arrive afterwards with their own
-        timestamps (each then counts from its own). A 1.5 s stop of the control cycle's process
-        read as a drive's heartbeat lost for 1.5 s, once the first TPDO after it arrived before
-        that drive's next heartbeat (fresh-clone run 1402)."""
+        On the virtual bus the time this process did not run since that heartbeat
+        (:meth:`host_stalled`) does not count: the simulated drives stood still with it. A
+        1.5 s stop of the control cycle's process read as a drive's heartbeat lost for 1.5 s,
+        once the first TPDO after it arrived before that drive's next heartbeat (fresh-clone
+        run 1402). On a real bus the heartbeats of meanwhile arrive afterwards with their own
+        timestamps."""
         age = heartbeat_age(d.hb_wall, self.rx_wall, time.time(), consumer_time=self.heartbeat_timeout,
                             all_silent=self.all_silent_periods * self.config.period)
         return max(0.0, age - (self.stalled_s - d.hb_stalled))
 
     def host_stalled(self, seconds: float) -> None:
-        """This process did not run for ``seconds`` (its SYNC thread woke that late): no
-        heartbeat heard before counts them (:meth:`heartbeat_age`)."""
-        if seconds > 0.0:
+        """This process did not run for ``seconds`` (its SYNC thread woke that late): on the
+        virtual bus, whose drives stood still with it, no heartbeat heard before counts them
+        (:meth:`heartbeat_age`)."""
+        if seconds > 0.0 and self._stalls_stop_the_bus:
             self.stalled_s += seconds
 
     def heartbeat_callback(self, d: _Node) -> Callable[[int, bytearray, float], None]:
