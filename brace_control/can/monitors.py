@@ -285,11 +285,6 @@ class Monitors:
             verdicts.append(verdict)
         if tracking and self._motion.executor.moving:
             verdicts.append(self.force_prediction.check(now, q, forces, togo))
-        else:
-            # a trend is one motion's: kept, the next motion's first cycle judged its rise
-            # against the loads of the last one, seconds before (a fault sweep: a soft stop
-            # at once, "rising 47 N in the last 0.00 mm")
-            self.force_prediction.prediction.clear()
         for verdict in verdicts:
             if verdict.action is Action.SOFT_STOP and self._soft_stop(verdict.reason):
                 break

@@ -391,6 +391,8 @@ class MasterProcess:
         self._conn = Connection(ours.detach())
         self._fresh = threading.Event()
         self._heard = time.monotonic()         # the last periodic snapshot's arrival
+        #: a gap whose first snapshot was taken on time, judged on the next one
+        self._gap_pending: tuple[float, float, float] | None = None
         self._taken = 0.0                       # and when the child took it (time.monotonic)
         self._reader = threading.Thread(target=self._read, name='brace_cycle_reader', daemon=True)
         self._reader.start()
@@ -473,8 +475,19 @@ class MasterProcess:
         self._snapshot = snap
         if periodic:
             now = time.monotonic()
-            if now - self._heard > SNAPSHOT_GAP_WARN_S:
-                self._warn_gap(now - self._heard, taken - self._taken)
+            pending, self._gap_pending = self._gap_pending, None
+            if pending is not None:
+                # the snapshot after a gap was taken on time: the child may have been stopped
+                # between taking it and sending it; this next one says (taken as long after it:
+                # the child did not run; on time again: this process fell behind)
+                gap, taken_apart, before = pending
+                self._warn_gap(gap, max(taken_apart, taken - before))
+            elif now - self._heard > SNAPSHOT_GAP_WARN_S:
+                gap, taken_apart = now - self._heard, taken - self._taken
+                if taken_apart > 0.5 * gap:
+                    self._warn_gap(gap, taken_apart)
+                else:
+                    self._gap_pending = (gap, taken_apart, taken)
             self._heard, self._taken = now, taken
             if self._on_snapshot is not None:
                 self._fresh.set()         # the callback runs in its own thread (it may call)
