@@ -21,7 +21,8 @@ from ..safety import OK, Action, ForcePrediction, PlatformWrench, Verdict, Wrenc
 from ..safety.force import pressing_past_soft_limit
 from ..safety.liveness import heartbeat, overspeed, stale_feedback
 from ..safety.wrench import SOFT_STREAM_S
-from .cia402 import NmtState, OpMode, State402, decode_state, describe_statusword, emcy_description
+from .cia402 import (NmtState, OpMode, State402, Statusword, decode_state, describe_statusword,
+                     emcy_description)
 from .lifecycle import Lifecycle, Motion
 from .receive import Receiver
 from .state import MasterConfig, MasterState, _Drive, _Module, _Node
@@ -34,7 +35,7 @@ log = logging.getLogger('brace_control.can.master')
 
 _SW_FAULT = 1 << 3
 _SW_WARNING = 1 << 7
-_SW_REMOTE = 1 << 9
+_SW_REMOTE = int(Statusword.REMOTE)
 _CSP = int(OpMode.CYCLIC_SYNC_POSITION)
 _SW_LIMIT = 1 << 11
 
@@ -165,6 +166,10 @@ class Monitors:
         now = time.monotonic()
         tracking = life.tracking and life.state is MasterState.ENABLED
         in_grace = now < self.grace_until
+        # a jump is judged at rest too (disabled, halted: an encoder that jumps there made the
+        # next enable start from a reading millimetres off the truth), not while homing moves
+        # the reference on purpose
+        jump = life.state is not MasterState.HOMING and life.mode == _CSP
         if self._life.module is not None:
             self._monitor_module(self._life.module, in_grace)
         for d in self._life.drives:
@@ -226,10 +231,6 @@ class Monitors:
                     self._supervisor.unwarn(f'{name}.limit')
             commanded = (self._scaling.to_si(self._commanded_for(d, s))
                          if tracking and decode_state(sw) is State402.OPERATION_ENABLED else None)
-            # a jump is judged at rest too (disabled, halted: an encoder that jumps there
-            # made the next enable start from a reading millimetres off the truth), not while
-            # homing moves the reference on purpose
-            jump = life.state is not MasterState.HOMING and life.mode == _CSP
             for kind, cause in check_sample(d.checked, s, limits, commanded=commanded, jump=jump):
                 self._supervisor.report(kind, cause, drive=name,
                                        still_present=(None if kind is FaultKind.POSITION_JUMP
